@@ -1,0 +1,33 @@
+# jaxpose: `make demo` and `make test` set everything up from a fresh clone.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench paper data venv clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/python -m jaxpose.demo --out out/demo
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/python experiments/bench.py
+
+data: $(STAMP)
+	$(BIN)/python experiments/make_data.py
+
+paper: $(STAMP)
+	$(BIN)/python experiments/paper_table.py
+
+clean:
+	rm -rf out data experiments/results/runs

@@ -1,0 +1,151 @@
+"""Pinhole intrinsics, depth images to point clouds, and projection.
+
+Camera frame: x right, y down, z forward (the OpenCV convention); depth is z.
+Depth values of 0, NaN or inf mean "no measurement" and are dropped.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .errors import DepthError, IntrinsicsError
+from .objective import Cloud
+
+
+class Intrinsics(NamedTuple):
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int = 640
+    height: int = 480
+
+
+KINECT_V1 = Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480)
+
+
+def check_intrinsics(k: Intrinsics, shape=None, source: str = "intrinsics") -> Intrinsics:
+    """Validate intrinsics (optionally against an image ``shape``); raise :class:`IntrinsicsError`."""
+    vals = [k.fx, k.fy, k.cx, k.cy]
+    if not all(np.isfinite(v) for v in vals):
+        raise IntrinsicsError(f"{source}: values must be finite numbers, got {list(k[:4])}")
+    if k.fx <= 0 or k.fy <= 0:
+        raise IntrinsicsError(f"{source}: focal lengths must be positive, got fx={k.fx}, fy={k.fy}")
+    h, w = (k.height, k.width) if shape is None else shape[:2]
+    if not (0 <= k.cx <= w and 0 <= k.cy <= h):
+        raise IntrinsicsError(
+            f"{source}: principal point ({k.cx}, {k.cy}) lies outside the {w}x{h} image"
+        )
+    return k
+
+
+def depth_to_points(depth: np.ndarray, k: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    """All pixels to camera-frame points: ``(H*W, 3)`` and a validity mask ``(H*W,)``."""
+    h, w = depth.shape
+    v, u = np.mgrid[0:h, 0:w]
+    z = depth.astype(np.float64)
+    valid = np.isfinite(z) & (z > 0)
+    z = np.where(valid, z, 0.0)
+    x = (u - k.cx) * z / k.fx
+    y = (v - k.cy) * z / k.fy
+    return np.stack([x, y, z], -1).reshape(-1, 3), valid.reshape(-1)
+
+
+def foreground_mask(
+    depth: np.ndarray,
+    near: float = 0.3,
+    far: float = 8.0,
+    background: np.ndarray | None = None,
+    background_tolerance: float = 0.05,
+) -> np.ndarray:
+    """Pixels that carry a measurement within ``[near, far]`` metres and, when a
+    background depth image is given, lie more than ``background_tolerance`` metres in
+    front of it (pixels where the background has no measurement are kept)."""
+    z = depth.astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        mask = np.isfinite(z) & (z > 0) & (z >= near) & (z <= far)
+        if background is not None:
+            b = background.astype(np.float64)
+            bvalid = np.isfinite(b) & (b > 0)
+            mask &= ~bvalid | (z < b - background_tolerance)
+    return mask
+
+
+def depth_to_cloud(
+    depth: np.ndarray,
+    intrinsics: Intrinsics = KINECT_V1,
+    near: float = 0.3,
+    far: float = 8.0,
+    background: np.ndarray | None = None,
+    max_points: int = 1024,
+    seed: int = 0,
+    min_points: int = 50,
+    background_tolerance: float = 0.05,
+    source: str = "depth image",
+) -> Cloud:
+    """Depth image (metres) -> fixed-size :class:`Cloud` of ``max_points`` points.
+
+    Background removal keeps pixels within ``[near, far]`` and, with a background
+    image, those in front of it.  When more than ``max_points`` pixels remain, a
+    deterministic random subset (NumPy generator seeded with ``seed``) is kept;
+    when fewer, the cloud is padded with weight-0 points.  Raises
+    :class:`DepthError` when fewer than ``min_points`` points remain.
+    """
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise DepthError(f"{source}: expected a single-channel depth image, got shape {depth.shape}")
+    if background is not None:
+        background = np.asarray(background)
+        if background.shape != depth.shape:
+            raise DepthError(
+                f"{source}: background image is {background.shape[1]}x{background.shape[0]}, "
+                f"the depth image is {depth.shape[1]}x{depth.shape[0]}"
+            )
+    check_intrinsics(intrinsics, depth.shape)
+    if not (0 <= near < far):
+        raise DepthError(f"{source}: near/far range must satisfy 0 <= near < far, got near={near}, far={far}")
+    if max_points < 1:
+        raise DepthError(f"{source}: max_points must be >= 1, got {max_points}")
+    pts, valid = depth_to_points(depth, intrinsics)
+    n_valid = int(valid.sum())
+    if n_valid == 0:
+        raise DepthError(f"{source}: the image holds no depth measurement (every pixel is 0, NaN or inf)")
+    mask = foreground_mask(depth, near, far, background, background_tolerance).reshape(-1)
+    idx = np.flatnonzero(mask)
+    if len(idx) < min_points:
+        raise DepthError(
+            f"{source}: only {len(idx)} points left after background removal "
+            f"(near={near} m, far={far} m{', background subtracted' if background is not None else ''}); "
+            f"at least {min_points} are needed"
+        )
+    if len(idx) > max_points:
+        rng = np.random.default_rng(seed)
+        idx = np.sort(rng.choice(idx, max_points, replace=False))
+    out = np.zeros((max_points, 3), np.float32)
+    w = np.zeros(max_points, np.float32)
+    out[: len(idx)] = pts[idx]
+    w[: len(idx)] = 1.0
+    return Cloud(out, w)
+
+
+def points_to_cloud(points: np.ndarray, max_points: int | None = None, seed: int = 0) -> Cloud:
+    """An ``(N, 3)`` array of finite points -> :class:`Cloud` (subsampled/padded to ``max_points``)."""
+    pts = np.asarray(points, np.float32).reshape(-1, 3)
+    pts = pts[np.all(np.isfinite(pts), -1)]
+    n = len(pts) if max_points is None else max_points
+    if len(pts) > n:
+        pts = pts[np.sort(np.random.default_rng(seed).choice(len(pts), n, replace=False))]
+    out = np.zeros((n, 3), np.float32)
+    w = np.zeros(n, np.float32)
+    out[: len(pts)] = pts
+    w[: len(pts)] = 1.0
+    return Cloud(out, w)
+
+
+def project(points: np.ndarray, k: Intrinsics) -> np.ndarray:
+    """Camera-frame points ``(..., 3)`` -> pixel coordinates ``(..., 2)`` (u, v)."""
+    p = np.asarray(points, np.float64)
+    z = np.where(np.abs(p[..., 2]) > 1e-9, p[..., 2], 1e-9)
+    return np.stack([k.fx * p[..., 0] / z + k.cx, k.fy * p[..., 1] / z + k.cy], -1)
