@@ -96,6 +96,7 @@ class Skeleton:
     link_names: tuple[str, ...] = field(metadata=dict(static=True), default=())
     parents: tuple[int, ...] = field(metadata=dict(static=True), default=())
     joint_types: tuple[str, ...] = field(metadata=dict(static=True), default=())
+    length_searched: tuple[bool, ...] = field(metadata=dict(static=True), default=())
 
     @property
     def num_links(self) -> int:
@@ -212,13 +213,12 @@ def genome_layout(skel: Skeleton) -> GenomeLayout:
         names.append(n)
         target.append(k)
         link_of.append(-1)
-    lo, hi = np.asarray(skel.length_lo), np.asarray(skel.length_hi)
     for i, (lname, jt) in enumerate(zip(skel.link_names, skel.joint_types)):
         for a in range(JOINT_DOF[jt]):
             names.append(f"{lname}.q{a}")
             target.append(7 + 3 * i + a)
             link_of.append(i)
-        if hi[i] > lo[i]:
+        if skel.length_searched[i]:
             names.append(f"{lname}.length")
             target.append(7 + 3 * skel.num_links + i)
             link_of.append(i)
@@ -446,6 +446,7 @@ def build_skeleton(
         name=str(name), link_names=tuple(l.name for l in order),
         parents=tuple(index[l.parent] if l.parent is not None else -1 for l in order),
         joint_types=tuple(l.joint for l in order),
+        length_searched=tuple(bool(h > l) for l, h in zip(llo, lhi)),
     )
 
 

@@ -1,0 +1,360 @@
+"""``fit``: search a skeleton's parameters for the pose that best explains a cloud.
+
+The whole search is pure JAX: :func:`fit` is jit-compatible and vmappable over a
+batch of clouds.  :class:`Fitter` runs the same steps one compiled chunk at a time
+so that a caller (the command line) can show progress between chunks.
+
+Budget.  ``population`` individuals are evaluated in the initial population and
+in each of ``generations`` generations.  Refinement adds gradient evaluations (a
+cost and its gradient) and a few plain evaluations.  ``FitResult`` reports exact
+counts; ``distance_evaluations`` counts point-to-capsule distances
+(``(objective + gradient evaluations) * N * L`` with ``N`` the cloud's array size).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ..errors import ConfigError
+from ..kinematics import Links, forward_kinematics
+from ..objective import Cloud, ObjectiveConfig, Observation, cloud_centre, observe, population_cost
+from ..skeleton import Bounds, Pose, Skeleton, decode, encode, genome_bounds, genome_layout, rest_pose
+from .baselines import BoundedHillClimbing, evosax_strategy
+from .ga import BranchSwapGA, subtree_masks
+from .refine import refine
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Search settings (hashable: a static argument of the compiled fit).
+
+    Attributes:
+        algorithm: ``"ga"`` (branch-swap GA), ``"hc"`` (hill climbing) or the name
+            of any evosax strategy (e.g. ``"cma_es"``).
+        population: individuals evaluated per generation.
+        generations: number of generations.
+        chunk: generations per compiled chunk (progress granularity) when
+            ``memetic_every`` is 0.
+        std_init, std_final: mutation / sampling step in normalised genome units,
+            decayed exponentially over the generations.
+        crossover_rate: probability that a child takes a subtree from a second parent.
+        mutation_rate: per-gene mutation probability.
+        branch_mutation_rate: probability that a child mutates one whole subtree instead.
+        elite_ratio: fraction of the population that may become parents.
+        memetic_every: every this many generations, refine the ``memetic_top`` best
+            individuals by ``memetic_steps`` Adam steps (0: never).
+        final_refine_steps: Adam steps on the ``final_refine_top`` best at the end (0: none).
+        learning_rate: Adam learning rate (genome units).
+        init_root_std: spread of the initial root translation genes around the
+            cloud's centre (genome units).
+        objective: the cost's settings.
+    """
+
+    algorithm: str = "ga"
+    population: int = 256
+    generations: int = 300
+    chunk: int = 25
+    std_init: float = 0.15
+    std_final: float = 0.01
+    crossover_rate: float = 0.5
+    mutation_rate: float = 0.15
+    branch_mutation_rate: float = 0.3
+    elite_ratio: float = 0.25
+    memetic_every: int = 25
+    memetic_top: int = 8
+    memetic_steps: int = 10
+    final_refine_top: int = 4
+    final_refine_steps: int = 100
+    learning_rate: float = 0.01
+    init_root_std: float = 0.1
+    objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
+
+    def validate(self) -> "FitConfig":
+        if not isinstance(self.population, int) or self.population < 2:
+            raise ConfigError(f"population must be an integer >= 2, got {self.population!r}")
+        if not isinstance(self.generations, int) or self.generations < 1:
+            raise ConfigError(f"generations must be an integer >= 1, got {self.generations!r}")
+        if self.chunk < 1:
+            raise ConfigError(f"chunk must be >= 1, got {self.chunk}")
+        if self.algorithm not in ("ga", "hc"):
+            evosax_strategy(self.algorithm)
+        for name in ("crossover_rate", "mutation_rate", "branch_mutation_rate"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= 1.0:
+                raise ConfigError(f"{name} must lie in [0, 1], got {v}")
+        if not 0.0 < self.elite_ratio <= 1.0:
+            raise ConfigError(f"elite_ratio must lie in (0, 1], got {self.elite_ratio}")
+        if self.std_init <= 0 or self.std_final <= 0:
+            raise ConfigError("std_init and std_final must be positive")
+        for name in ("memetic_every", "memetic_top", "memetic_steps", "final_refine_top", "final_refine_steps"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)}")
+        return self
+
+    @property
+    def epoch(self) -> int:
+        """Generations per compiled chunk."""
+        return self.memetic_every if self.memetic_on else self.chunk
+
+    @property
+    def memetic_on(self) -> bool:
+        return self.algorithm == "ga" and self.memetic_every > 0 and self.memetic_top > 0 and self.memetic_steps > 0
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+class FitResult(NamedTuple):
+    """What a fit returns (a pytree; every leaf gains a batch axis under vmap)."""
+
+    pose: Pose  # best parameters, physical units
+    genome: jax.Array  # (D,) best genome
+    links: Links  # posed links of the best parameters (camera frame)
+    cost: jax.Array  # () final cost
+    history: jax.Array  # (generations,) best cost after each generation
+    objective_evaluations: jax.Array  # () int
+    gradient_evaluations: jax.Array  # () int
+    distance_evaluations: jax.Array  # () float (can exceed int32)
+    wall_time: jax.Array  # () seconds, filled in by Fitter / fit_cloud (0 inside jit)
+
+
+class SearchState(NamedTuple):
+    algo_state: Any
+    key: jax.Array
+    obs: Observation
+    bounds: Bounds
+    objective_evaluations: jax.Array
+    gradient_evaluations: jax.Array
+
+
+# --------------------------------------------------------------------------- pieces
+
+
+def _make_algorithm(skel: Skeleton, config: FitConfig):
+    D = genome_layout(skel).size
+    P = config.population
+    decay = (config.std_final / config.std_init) ** (1.0 / max(config.generations, 1))
+    schedule = optax.exponential_decay(config.std_init, 1, decay, end_value=config.std_final)
+    dummy = jnp.zeros(D, jnp.float32)
+    if config.algorithm == "ga":
+        algo = BranchSwapGA(P, dummy, subtree_masks(skel), std_schedule=schedule, elite_ratio=config.elite_ratio)
+        params = algo.default_params.replace(
+            crossover_rate=config.crossover_rate,
+            mutation_rate=config.mutation_rate,
+            branch_mutation_rate=config.branch_mutation_rate,
+        )
+        return algo, params
+    if config.algorithm == "hc":
+        algo = BoundedHillClimbing(P, dummy, std_schedule=schedule)
+        return algo, algo.default_params
+    cls = evosax_strategy(config.algorithm)
+    algo = cls(P, dummy)
+    params = algo.default_params
+    if hasattr(params, "std_init"):
+        params = params.replace(std_init=config.std_init)
+    return algo, params
+
+
+def _population_cost_fn(skel: Skeleton, obs: Observation, bounds: Bounds, config: FitConfig):
+    def cost(genomes):
+        poses = jax.vmap(partial(decode, skel, bounds))(genomes)
+        links = jax.vmap(partial(forward_kinematics, skel))(poses)
+        c = population_cost(obs, links.start, links.end, links.radius, config.objective)
+        return jnp.where(jnp.isfinite(c), c, jnp.inf)
+
+    return cost
+
+
+def _single_cost_fn(skel, obs, bounds, config):
+    pop_cost = _population_cost_fn(skel, obs, bounds, config)
+    return lambda g: pop_cost(g[None])[0]
+
+
+def model_spread(skel: Skeleton) -> jax.Array:
+    """RMS distance of the rest-pose capsule axes (scale 1) from their centroid."""
+    links = forward_kinematics(skel, rest_pose(skel))
+    t = jnp.linspace(0.0, 1.0, 8)[:, None, None]
+    pts = (links.start[None] + t * (links.end - links.start)[None]).reshape(-1, 3)
+    return jnp.sqrt(jnp.mean(jnp.sum((pts - pts.mean(0)) ** 2, -1)) + 1e-12)
+
+
+def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, config: FitConfig) -> jax.Array:
+    """Data-driven initial genomes: root near the cloud's centre, scale from the
+    cloud's spread against the model's, orientation and joint angles uniform within
+    limits, lengths near their rest values."""
+    layout = genome_layout(skel)
+    P, D = config.population, layout.size
+    k_u, k_t, k_s, k_l = jax.random.split(key, 4)
+    g = jax.random.uniform(k_u, (P, D))
+    names = layout.names
+    root_t = np.array([n in ("root_tx", "root_ty", "root_tz") for n in names])
+    scale_i = names.index("scale")
+    is_len = np.array([n.endswith(".length") for n in names])
+    g = jnp.where(root_t, 0.5 + config.init_root_std * jax.random.normal(k_t, (P, D)), g)
+    s0 = obs.sigma / config.objective.sigma_factor / model_spread(skel)
+    s0 = jnp.clip(s0, skel.scale_lo, skel.scale_hi)
+    s_span = jnp.maximum(skel.scale_hi - skel.scale_lo, 1e-9)
+    s_gene = (s0 * jnp.exp(0.15 * jax.random.normal(k_s, (P,))) - skel.scale_lo) / s_span
+    g = g.at[:, scale_i].set(s_gene)
+    rest_g = encode(skel, bounds, rest_pose(skel))
+    g = jnp.where(is_len, rest_g + 0.1 * jax.random.normal(k_l, (P, D)), g)
+    return jnp.clip(g, 0.0, 1.0)
+
+
+def search_init(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> SearchState:
+    obs = observe(cloud, config.objective)
+    centre = cloud_centre(cloud)
+    d = jnp.sqrt(jnp.sum((cloud.points - centre) ** 2, -1))
+    extent = jnp.maximum(jnp.max(jnp.where(cloud.weights > 0, d, 0.0)), 1e-3)
+    bounds = genome_bounds(skel, centre, extent)
+    algo, params = _make_algorithm(skel, config)
+    k_pop, k_init, k_run = jax.random.split(key, 3)
+    pop0 = initial_population(k_pop, skel, obs, bounds, config)
+    fit0 = _population_cost_fn(skel, obs, bounds, config)(pop0)
+    if config.algorithm == "ga":
+        state = algo.init(k_init, pop0, fit0, params)
+    else:
+        best = jnp.argmin(fit0)
+        state = algo.init(k_init, pop0[best], params)
+        state = state.replace(best_solution=pop0[best], best_fitness=fit0[best])
+    P = config.population
+    return SearchState(state, k_run, obs, bounds, jnp.asarray(P, jnp.int32), jnp.asarray(0, jnp.int32))
+
+
+def _memetic(skel, config, st: SearchState, algo_state, cost1):
+    m = min(config.memetic_top, config.population)
+    order = jnp.argsort(algo_state.fitness)[:m]
+    g, f = refine(cost1, algo_state.population[order], config.memetic_steps, config.learning_rate)
+    pop = algo_state.population.at[order].set(g)
+    fit = algo_state.fitness.at[order].set(f)
+    i = jnp.argmin(f)
+    better = f[i] < algo_state.best_fitness
+    return algo_state.replace(
+        population=pop,
+        fitness=fit,
+        best_solution=jnp.where(better, g[i], algo_state.best_solution),
+        best_fitness=jnp.where(better, f[i], algo_state.best_fitness),
+    )
+
+
+def search_epoch(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
+    """Run ``length`` generations (then a memetic refinement, when on).  Returns the
+    new state and the best cost after each generation ``(length,)``."""
+    algo, params = _make_algorithm(skel, config)
+    pop_cost = _population_cost_fn(skel, st.obs, st.bounds, config)
+
+    def generation(carry, _):
+        state, key = carry
+        key, k_ask, k_tell = jax.random.split(key, 3)
+        pop, state = algo.ask(k_ask, state, params)
+        fitness = pop_cost(pop)
+        state, _ = algo.tell(k_tell, pop, fitness, state, params)
+        return (state, key), state.best_fitness
+
+    (state, key), hist = jax.lax.scan(generation, (st.algo_state, st.key), None, length=length)
+    evals = st.objective_evaluations + length * config.population
+    grads = st.gradient_evaluations
+    if config.memetic_on:
+        state = _memetic(skel, config, st, state, _single_cost_fn(skel, st.obs, st.bounds, config))
+        m = min(config.memetic_top, config.population)
+        evals = evals + m
+        grads = grads + m * config.memetic_steps
+        hist = hist.at[-1].set(state.best_fitness)
+    return st._replace(algo_state=state, key=key, objective_evaluations=evals, gradient_evaluations=grads), hist
+
+
+def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchState, history) -> FitResult:
+    state = st.algo_state
+    cost1 = _single_cost_fn(skel, st.obs, st.bounds, config)
+    best_g, best_f = state.best_solution, state.best_fitness
+    evals, grads = st.objective_evaluations, st.gradient_evaluations
+    if config.final_refine_steps > 0 and config.final_refine_top > 0:
+        if config.algorithm == "ga":
+            m = min(config.final_refine_top, config.population)
+            order = jnp.argsort(state.fitness)[: m - 1]
+            cand = jnp.concatenate([best_g[None], state.population[order]])
+        else:
+            cand = best_g[None]
+        g, f = refine(cost1, cand, config.final_refine_steps, config.learning_rate)
+        evals = evals + cand.shape[0]
+        grads = grads + cand.shape[0] * config.final_refine_steps
+        i = jnp.argmin(f)
+        better = f[i] < best_f
+        best_g = jnp.where(better, g[i], best_g)
+        best_f = jnp.where(better, f[i], best_f)
+    pose = decode(skel, st.bounds, best_g)
+    links = forward_kinematics(skel, pose)
+    n_dist = (evals + grads).astype(jnp.float32) * cloud.points.shape[0] * skel.num_links
+    return FitResult(pose, best_g, links, best_f, history, evals, grads, n_dist, jnp.asarray(0.0, jnp.float32))
+
+
+def _epochs(config: FitConfig) -> tuple[int, int, int]:
+    E = config.epoch
+    return E, config.generations // E, config.generations % E
+
+
+def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = FitConfig()) -> FitResult:
+    """Search ``skeleton``'s parameters that best explain ``cloud`` (camera frame).
+
+    Pure and jit-compatible (``config`` is static); vmappable over clouds and keys::
+
+        fit_jit = jax.jit(fit, static_argnames="config")
+        batch = jax.vmap(fit_jit, in_axes=(0, None, 0, None))(clouds, skel, keys, config)
+    """
+    config.validate()
+    st = search_init(cloud, skeleton, key, config)
+    E, n_full, rem = _epochs(config)
+    hists = []
+    if n_full:
+        st, h = jax.lax.scan(lambda s, _: search_epoch(skeleton, config, s, E), st, None, length=n_full)
+        hists.append(h.reshape(-1))
+    if rem:
+        st, h = search_epoch(skeleton, config, st, rem)
+        hists.append(h)
+    return search_finish(cloud, skeleton, config, st, jnp.concatenate(hists))
+
+
+_init_jit = jax.jit(search_init, static_argnames="config")
+_epoch_jit = jax.jit(search_epoch, static_argnames=("config", "length"))
+_finish_jit = jax.jit(search_finish, static_argnames="config")
+
+
+class Fitter:
+    """Run :func:`fit`'s steps one compiled chunk at a time, for progress reports.
+
+    ``progress(generation, best_cost, evaluations)`` is called after every chunk.
+    """
+
+    def __init__(self, skeleton: Skeleton, config: FitConfig = FitConfig()):
+        self.skeleton = skeleton
+        self.config = config.validate()
+
+    def run(self, cloud: Cloud, key: jax.Array, progress=None) -> FitResult:
+        cloud = Cloud(jnp.asarray(cloud.points, jnp.float32), jnp.asarray(cloud.weights, jnp.float32))
+        t0 = time.perf_counter()
+        st = _init_jit(cloud, self.skeleton, key, self.config)
+        E, n_full, rem = _epochs(self.config)
+        hists, gen = [], 0
+        for length in [E] * n_full + ([rem] if rem else []):
+            st, h = _epoch_jit(self.skeleton, self.config, st, length)
+            hists.append(h)
+            gen += length
+            if progress is not None:
+                progress(gen, float(h[-1]), int(st.objective_evaluations) + int(st.gradient_evaluations))
+        res = _finish_jit(cloud, self.skeleton, self.config, st, jnp.concatenate(hists))
+        res = jax.block_until_ready(res)
+        return res._replace(wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32))
+
+
+def fit_cloud(cloud: Cloud, skeleton: Skeleton, seed: int = 0, config: FitConfig = FitConfig(), progress=None) -> FitResult:
+    """Convenience: :class:`Fitter` with an integer seed; returns NumPy-friendly results."""
+    return Fitter(skeleton, config).run(cloud, jax.random.key(seed), progress)

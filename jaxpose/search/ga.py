@@ -1,0 +1,137 @@
+"""A genetic algorithm with branch-swap crossover, in evosax's ask/tell framework.
+
+The genome is the flat, normalised vector of :mod:`jaxpose.skeleton` (every gene
+in ``[0, 1]``).  One generation:
+
+1. *Selection*: parents are drawn uniformly from the ``num_elites`` best of the
+   current population (truncation selection).
+2. *Branch-swap crossover* (probability ``crossover_rate``): the child copies the
+   first parent, then takes every gene of one randomly chosen subtree — the joint
+   angles and lengths of a link and of all links below it — from the second
+   parent.  ``subtree_masks[k]`` (precomputed from the skeleton) marks those genes.
+3. *Mutation*: Gaussian noise of standard deviation ``std`` (a decaying schedule)
+   on each gene with probability ``mutation_rate``, or, with probability
+   ``branch_mutation_rate``, on every gene of one random subtree; results are
+   clipped to ``[0, 1]``.
+4. *Elitism* (in ``tell``): the next population is the best ``population_size``
+   of the ``num_keep`` best parents and all children, so the best individual is
+   never lost.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from evosax.algorithms.population_based.base import (
+    Params as BaseParams,
+    PopulationBasedAlgorithm,
+    State as BaseState,
+)
+from evosax.core.fitness_shaping import identity_fitness_shaping_fn
+from evosax.types import Fitness, Population, Solution
+from flax import struct
+
+from ..skeleton import Skeleton, genome_layout
+
+
+@struct.dataclass
+class State(BaseState):
+    population: Population
+    fitness: Fitness
+    std: jax.Array
+
+
+@struct.dataclass
+class Params(BaseParams):
+    crossover_rate: float
+    mutation_rate: float
+    branch_mutation_rate: float
+
+
+def subtree_masks(skel: Skeleton) -> np.ndarray:
+    """``(L, D)`` boolean: genes of link ``k`` and all links below it."""
+    layout = genome_layout(skel)
+    return np.stack([layout.gene_mask(skel.subtree(k)) for k in range(skel.num_links)])
+
+
+def branch_swap(key: jax.Array, parent_1: Solution, parent_2: Solution, masks: jax.Array, rate) -> Solution:
+    """Child = ``parent_1`` with one random subtree's genes from ``parent_2`` (with prob. ``rate``)."""
+    k_do, k_which = jax.random.split(key)
+    mask = masks[jax.random.randint(k_which, (), 0, masks.shape[0])]
+    mask = mask & (jax.random.uniform(k_do) < rate)
+    return jnp.where(mask, parent_2, parent_1)
+
+
+def mutate(key: jax.Array, x: Solution, std, rate, branch_rate, masks: jax.Array) -> Solution:
+    """Gaussian mutation of random genes or of one random subtree, clipped to ``[0, 1]``."""
+    k_gene, k_noise, k_mode, k_which = jax.random.split(key, 4)
+    gene_mask = jax.random.uniform(k_gene, x.shape) < rate
+    branch_mask = masks[jax.random.randint(k_which, (), 0, masks.shape[0])]
+    mask = jnp.where(jax.random.uniform(k_mode) < branch_rate, branch_mask, gene_mask)
+    return jnp.clip(x + mask * std * jax.random.normal(k_noise, x.shape), 0.0, 1.0)
+
+
+class BranchSwapGA(PopulationBasedAlgorithm):
+    """Elitist GA with branch-swap crossover on a skeleton genome."""
+
+    def __init__(
+        self,
+        population_size: int,
+        solution: Solution,
+        masks: np.ndarray,
+        std_schedule: Callable = optax.constant_schedule(0.05),
+        elite_ratio: float = 0.25,
+        keep_ratio: float = 0.05,
+        fitness_shaping_fn: Callable = identity_fitness_shaping_fn,
+    ):
+        super().__init__(population_size, solution, fitness_shaping_fn)
+        self.masks = np.asarray(masks, bool)
+        self.std_schedule = std_schedule
+        self.elite_ratio = elite_ratio
+        self.num_keep = max(1, int(keep_ratio * population_size))
+
+    @property
+    def _default_params(self) -> Params:
+        return Params(crossover_rate=0.5, mutation_rate=0.15, branch_mutation_rate=0.3)
+
+    def _init(self, key: jax.Array, params: Params) -> State:
+        return State(
+            population=jnp.full((self.population_size, self.num_dims), jnp.nan),
+            fitness=jnp.full((self.population_size,), jnp.inf),
+            std=jnp.asarray(self.std_schedule(0), jnp.float32),
+            best_solution=jnp.full((self.num_dims,), jnp.nan),
+            best_fitness=jnp.inf,
+            generation_counter=0,
+        )
+
+    def _ask(self, key: jax.Array, state: State, params: Params) -> tuple[Population, State]:
+        order = jnp.argsort(state.fitness)
+        elites = state.population[order[: self.num_elites]]
+        k1, k2, kc, km = jax.random.split(key, 4)
+        i1 = jax.random.randint(k1, (self.population_size,), 0, self.num_elites)
+        i2 = jax.random.randint(k2, (self.population_size,), 0, self.num_elites)
+        masks = jnp.asarray(self.masks)
+        children = jax.vmap(branch_swap, in_axes=(0, 0, 0, None, None))(
+            jax.random.split(kc, self.population_size), elites[i1], elites[i2], masks, params.crossover_rate
+        )
+        children = jax.vmap(mutate, in_axes=(0, 0, None, None, None, None))(
+            jax.random.split(km, self.population_size), children, state.std, params.mutation_rate,
+            params.branch_mutation_rate, masks,
+        )
+        return children, state
+
+    def _tell(self, key, population: Population, fitness: Fitness, state: State, params: Params) -> State:
+        fitness = jnp.where(jnp.isnan(fitness), jnp.inf, fitness)
+        order = jnp.argsort(state.fitness)[: self.num_keep]
+        pool = jnp.concatenate([state.population[order], population])
+        pool_fit = jnp.concatenate([state.fitness[order], fitness])
+        keep = jnp.argsort(pool_fit)[: self.population_size]
+        return state.replace(
+            population=pool[keep],
+            fitness=pool_fit[keep],
+            std=jnp.asarray(self.std_schedule(state.generation_counter + 1), jnp.float32),
+        )
