@@ -1,0 +1,292 @@
+"""MuJoCo MJCF files -> :class:`~jaxpose.skeleton.Skeleton`, and MuJoCo joint values -> :class:`Pose`.
+
+The file is compiled by the official ``mujoco`` package (the optional extra
+``jaxpose[mujoco]``), so defaults, classes, ``childclass``, includes, ``fromto``,
+``euler``/``axisangle``/``zaxis`` orientations and ``<compiler angle=...>`` are
+resolved by MuJoCo itself; the importer reads the compiled body tree
+(``body_parentid``, ``body_pos``, ``body_quat``, ``jnt_*``, ``geom_*``).
+
+Mapping.  Every body except the world body becomes a jaxpose link of the same
+name (an unnamed body: ``body<id>``) whose frame is the MuJoCo body frame, so
+``forward_kinematics(...).origin`` equals MuJoCo's ``data.xpos``:
+
+==========================  ================================================================
+MJCF                        jaxpose
+==========================  ================================================================
+``<body pos quat>``         ``offset = pos``, ``rest_matrix = R(quat)``, ``attach = 0``
+no joint                    ``fixed`` (the body is welded to its parent)
+``hinge``                   ``hinge`` about the joint axis; angle ``qpos - qpos0`` (``ref``);
+                            limits ``range - ref``, unlimited: [-180, 180] degrees
+``ball``                    ``ball`` (roll, pitch, yaw of the joint quaternion);
+                            a limited ball of range ``r``: [-r, r] for each angle
+``free``                    the searched root pose (top-level body only, at most one)
+``slide``                   rejected (jaxpose skeletons only rotate)
+several joints on a body    a chain of zero-length, zero-radius links ``body/joint`` with one
+                            joint each; the body's own link comes last and carries the geometry
+==========================  ================================================================
+
+A joint rotates about its anchor (``<joint pos>``).  The link carrying it has its
+origin at the anchor; when the last joint of a body is anchored away from the body
+origin, the body link itself is a ``fixed`` link back at the body origin.  With
+``search_lengths`` the ranges are as in :mod:`jaxpose.io.urdf`.  Top-level bodies
+without a free joint hang from the searched root frame (the world of the file);
+a free body may not share the world with other top-level bodies.  Equality
+constraints, tendons, sites, actuators and the world body's own geoms (floors)
+are ignored.
+
+Geometry.  Every geom of a body except planes, height fields and SDFs is turned
+into balls enclosing it (:mod:`jaxpose.io.urdf` explains the construction), and
+the body's link gets the one capsule that encloses all of them:
+
+* ``capsule``: exact (MuJoCo's capsule runs along the geom's z axis, ``size[0]`` the
+  radius, ``size[1]`` the half-length); ``sphere``: a zero-length capsule;
+* ``cylinder``: the capsule of the same axis, radius and segment (encloses it);
+* ``ellipsoid``: along its longest axis with the larger other radius (encloses it);
+* ``box``: enclosing its eight corners, normally along its longest side with the
+  half-diagonal of the two others as radius;
+* ``mesh``: enclosing every vertex of the compiled mesh (MuJoCo reads the file).
+"""
+
+from __future__ import annotations
+
+import os
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import SkeletonError
+from ..skeleton import LinkSpec, Pose, Skeleton, build_skeleton
+from .urdf import (
+    box_shape, capsule_shape, ellipsoid_shape, enclosing_capsule, length_range, points_shape, sphere_shape,
+)
+
+_MISSING = "MJCF support needs the 'mujoco' extra: pip install 'jaxpose[mujoco]'"
+_FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3  # mjtJoint
+_PLANE, _HFIELD, _SPHERE, _CAPSULE, _ELLIPSOID, _CYLINDER, _BOX, _MESH = range(8)  # mjtGeom
+
+
+def _import_mujoco():
+    try:
+        import mujoco
+    except ImportError:
+        raise SkeletonError(_MISSING) from None
+    return mujoco
+
+
+def compile_mjcf(path):
+    """Compile an MJCF file with MuJoCo; any failure becomes one :class:`SkeletonError`."""
+    path = str(path)
+    if not os.path.exists(path):
+        raise SkeletonError(f"{path}: skeleton file not found")
+    if os.path.isdir(path):
+        raise SkeletonError(f"{path}: is a directory, not a skeleton file")
+    mujoco = _import_mujoco()
+    try:
+        return mujoco.MjModel.from_xml_path(path)
+    except Exception as e:  # MuJoCo raises ValueError for XML and compile errors
+        msg = "; ".join(line.strip() for line in str(e).splitlines() if line.strip())
+        raise SkeletonError(f"{path}: MuJoCo cannot compile the model: {msg}") from None
+
+
+def load_mjcf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0)) -> Skeleton:
+    """Read an MJCF file as a :class:`~jaxpose.skeleton.Skeleton` (see the module docstring).
+
+    Args:
+      path: the MJCF ``.xml`` file.
+      search_lengths: also search every capsule length within +-30 % (default: fixed).
+      scale_range: search range of the global scale.
+
+    Raises:
+      SkeletonError: one message naming the file and the problem (also when the
+        ``mujoco`` package is missing or MuJoCo cannot compile the file).
+    """
+    path = str(path)
+    model = compile_mjcf(path)
+    return skeleton_from_model(model, source=path, search_lengths=search_lengths, scale_range=scale_range)
+
+
+def skeleton_from_model(model, *, source: str = "<mjcf>", search_lengths: bool = False,
+                        scale_range=(0.5, 2.0), name: str | None = None) -> Skeleton:
+    """Build the skeleton of a compiled ``mujoco.MjModel`` (``source`` names it in errors)."""
+    specs, _ = _plan(model, source, search_lengths)
+    if name is None:
+        name = bytes(model.names).split(b"\0", 1)[0].decode() or os.path.splitext(os.path.basename(source))[0]
+    return build_skeleton(name, specs, scale_range=scale_range, source=source, require_geometry=False)
+
+
+def pose_from_qpos(skel: Skeleton, model, qpos) -> Pose:
+    """The jaxpose :class:`Pose` (scale 1) of MuJoCo joint values ``qpos`` (``(model.nq,)``).
+
+    A free root joint gives ``root_t`` and ``root_rpy``; hinge angles are measured
+    from ``qpos0``; ball quaternions become roll, pitch, yaw.  ``skel`` must come
+    from the same model (:func:`skeleton_from_model` or :func:`load_mjcf`).
+    """
+    qpos = np.asarray(qpos, float).reshape(-1)
+    if qpos.shape != (model.nq,):
+        raise ValueError(f"qpos must have shape ({model.nq},), got {qpos.shape}")
+    _, joint_links = _plan(model, "<mjcf>", False, geometry=False)
+    root_t, root_rpy = np.zeros(3), np.zeros(3)
+    angles = np.zeros((skel.num_links, 3))
+    for link, j in joint_links:
+        adr, jt = int(model.jnt_qposadr[j]), int(model.jnt_type[j])
+        if jt == _FREE:
+            root_t = qpos[adr : adr + 3]
+            root_rpy = matrix_to_rpy(quat_to_matrix(qpos[adr + 3 : adr + 7]))
+        elif jt == _HINGE:
+            angles[skel.index(link), 0] = qpos[adr] - model.qpos0[adr]
+        elif jt == _BALL:
+            angles[skel.index(link)] = matrix_to_rpy(quat_to_matrix(qpos[adr : adr + 4]))
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    return Pose(f32(root_t), f32(root_rpy), f32(1.0), f32(angles), f32(skel.length))
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    """Rotation matrix of a MuJoCo quaternion ``(w, x, y, z)`` (normalised first)."""
+    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def matrix_to_rpy(R) -> np.ndarray:
+    """``(roll, pitch, yaw)`` with ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``, pitch in [-pi/2, pi/2]."""
+    R = np.asarray(R, float)
+    pitch = np.arcsin(np.clip(-R[2, 0], -1.0, 1.0))
+    if abs(R[2, 0]) < 1 - 1e-9:
+        return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])
+    # gimbal lock: only yaw - roll (or yaw + roll) is defined; put it all in yaw
+    return np.array([0.0, pitch, np.arctan2(-R[0, 1], R[1, 1])])
+
+
+# --------------------------------------------------------------------------- the compiled tree
+
+
+def _names(model, count, kind, default):
+    return [getattr(model, kind)(i).name or f"{default}{i}" for i in range(count)]
+
+
+def _plan(model, source, search_lengths, geometry=True):
+    """LinkSpecs of the compiled model and ``[(link name, joint id)]`` for every joint."""
+
+    def fail(msg):
+        raise SkeletonError(f"{source}: {msg}")
+
+    nb = int(model.nbody)
+    if nb <= 1:
+        fail("the model has no bodies (only the world body)")
+    body_names = _names(model, nb, "body", "body")
+    joint_names = _names(model, int(model.njnt), "joint", "joint")
+    parent = np.asarray(model.body_parentid)
+    jnt_body = np.asarray(model.jnt_bodyid)
+    jtype = np.asarray(model.jnt_type)
+
+    free_bodies = []
+    for j in range(model.njnt):
+        b = int(jnt_body[j])
+        if jtype[j] == _SLIDE:
+            fail(f"joint {joint_names[j]!r} (body {body_names[b]!r}): slide (prismatic) joints are not "
+                 "supported (jaxpose skeletons have rotational joints only)")
+        if jtype[j] == _FREE:
+            if parent[b] != 0:
+                fail(f"joint {joint_names[j]!r}: a free joint is only supported on a top-level body, "
+                     f"not on {body_names[b]!r}")
+            if np.count_nonzero(jnt_body == b) > 1:
+                fail(f"body {body_names[b]!r}: a free joint must be the body's only joint")
+            free_bodies.append(b)
+    top = [b for b in range(1, nb) if parent[b] == 0]
+    if len(free_bodies) > 1:
+        fail(f"{len(free_bodies)} bodies have free joints ({', '.join(repr(body_names[b]) for b in free_bodies)}); "
+             "jaxpose fits one articulated skeleton with one root pose")
+    if free_bodies and len(top) > 1:
+        other = next(b for b in top if b != free_bodies[0])
+        fail(f"body {body_names[free_bodies[0]]!r} floats freely while body {body_names[other]!r} is attached "
+             "to the world; jaxpose moves the whole skeleton with one root pose")
+
+    shapes = _geometry(model) if geometry else [[] for _ in range(nb)]
+    taken = set(body_names[1:])
+    specs, joint_links = [], []
+    for b in range(1, nb):
+        bname = body_names[b]
+        parent_link = body_names[parent[b]] if parent[b] != 0 else None
+        pos = np.asarray(model.body_pos[b], float)
+        R = quat_to_matrix(model.body_quat[b])
+        joints = [j for j in range(model.njnt) if jnt_body[j] == b]
+        if joints and jtype[joints[0]] == _FREE:
+            joint_links.append((bname, joints[0]))
+            pos, R, joints = np.zeros(3), np.eye(3), []  # the body pose is the root pose
+        prev = None  # anchor of the previous joint of this body (in the body frame)
+        on_body = False
+        for m, j in enumerate(joints):
+            anchor = np.asarray(model.jnt_pos[j], float)
+            on_body = m == len(joints) - 1 and np.all(np.abs(anchor) < 1e-12)
+            if on_body:
+                lname = bname
+            else:
+                lname = f"{bname}/{joint_names[j]}"
+                if lname in taken:
+                    lname = f"{lname}#{j}"
+                taken.add(lname)
+            if prev is None:
+                where = dict(offset=tuple(pos + R @ anchor), rest_matrix=R)
+            else:
+                where = dict(offset=tuple(anchor - prev), rest_matrix=np.eye(3))
+            kind = _joint_spec(model, j)
+            geom = _capsule_spec(shapes[b], search_lengths) if on_body else dict(length=0.0, radius=0.0)
+            specs.append(LinkSpec(name=lname, parent=parent_link, attach=0.0, **where, **kind, **geom))
+            joint_links.append((lname, j))
+            parent_link, prev = lname, anchor
+        if not on_body:
+            if prev is None:
+                where = dict(offset=tuple(pos), rest_matrix=R)
+            else:
+                where = dict(offset=tuple(-prev), rest_matrix=np.eye(3))
+            specs.append(LinkSpec(name=bname, parent=parent_link, attach=0.0, joint="fixed", **where,
+                                  **_capsule_spec(shapes[b], search_lengths)))
+    return specs, joint_links
+
+
+def _joint_spec(model, j):
+    jt = int(model.jnt_type[j])
+    limited = bool(model.jnt_limited[j])
+    lo, hi = (float(v) for v in model.jnt_range[j])
+    if jt == _HINGE:
+        ref = float(model.qpos0[model.jnt_qposadr[j]])
+        lim = np.rad2deg([lo - ref, hi - ref]) if limited else [-180.0, 180.0]
+        return dict(joint="hinge", axis=tuple(np.asarray(model.jnt_axis[j], float)), limits=[list(map(float, lim))])
+    r = min(float(np.rad2deg(hi)), 180.0) if limited else 180.0
+    return dict(joint="ball", limits=[[-r, r]] * 3)
+
+
+def _capsule_spec(shapes, search_lengths):
+    start, d, length, radius = enclosing_capsule(shapes)
+    return dict(seg_start=tuple(start), seg_dir=tuple(d), length=length, radius=radius,
+                length_range=length_range(length, search_lengths))
+
+
+def _geometry(model):
+    """For every body, the list of :class:`~jaxpose.io.urdf.Shape` of its geoms (body frame)."""
+    shapes = [[] for _ in range(model.nbody)]
+    for g in range(model.ngeom):
+        b = int(model.geom_bodyid[g])
+        if b == 0:
+            continue
+        t = int(model.geom_type[g])
+        pos = np.asarray(model.geom_pos[g], float)
+        R = quat_to_matrix(model.geom_quat[g])
+        size = np.asarray(model.geom_size[g], float)
+        if t == _SPHERE:
+            shapes[b].append(sphere_shape(pos, size[0]))
+        elif t in (_CAPSULE, _CYLINDER):
+            shapes[b].append(capsule_shape(pos, R, size[0], size[1]))
+        elif t == _ELLIPSOID:
+            shapes[b].append(ellipsoid_shape(pos, R, size))
+        elif t == _BOX:
+            shapes[b].append(box_shape(pos, R, size))
+        elif t == _MESH and model.geom_dataid[g] >= 0:
+            m = int(model.geom_dataid[g])
+            adr, n = int(model.mesh_vertadr[m]), int(model.mesh_vertnum[m])
+            verts = np.asarray(model.mesh_vert[adr : adr + n], float)
+            shapes[b].append(points_shape(pos + verts @ R.T))
+    return shapes

@@ -1,0 +1,366 @@
+"""URDF robot files -> :class:`~jaxpose.skeleton.Skeleton`, and the capsule approximation of geometry.
+
+Mapping.  Every URDF ``<link>`` becomes a jaxpose link of the same name; every
+``<joint>`` sets the frame of its child link in its parent link's frame:
+
+==============================  ==========================================================
+URDF                            jaxpose
+==============================  ==========================================================
+``<link name>``                 link ``name`` (the root link hangs from the searched root)
+joint ``<origin xyz rpy>``      ``offset = xyz``, ``rest_matrix = Rz(y) Ry(p) Rx(r)``, ``attach = 0``
+``revolute``                    ``hinge`` about ``<axis xyz>`` (joint frame), ``<limit lower upper>``
+``continuous``                  ``hinge``, limits [-180, 180] degrees
+``fixed``                       ``fixed`` (a zero-DOF link)
+``prismatic``                   rejected (jaxpose skeletons only rotate)
+``floating``, ``planar``        rejected (the root pose is always searched anyway)
+``<mimic>``                     ignored: the joint is searched independently
+==============================  ==========================================================
+
+The frames are those of the URDF: with ``attach = 0`` a link's anchor is just its
+joint origin, so ``forward_kinematics(...).origin`` is the URDF link origin.
+
+Geometry.  ``<collision>`` elements are used when a link has any, otherwise its
+``<visual>`` elements.  Each becomes one capsule in the link frame (see
+:func:`enclosing_capsule`, shared with the MJCF importer):
+
+* ``sphere``: a zero-length capsule of the same radius;
+* ``cylinder``: the capsule along its axis with the same radius and segment length
+  (it encloses the cylinder; the caps stick out by one radius);
+* ``capsule`` (a common extension): exact;
+* ``box``: a capsule along its longest axis with the half-diagonal of the two other
+  sides as radius and the full long side as segment (it encloses the box);
+* ``mesh``: mesh files are not read.  The mesh is stood in for by a ball of radius
+  :data:`DEFAULT_MESH_RADIUS` times the largest ``scale`` factor at the geometry's
+  origin.  Give the link a ``<collision>`` primitive for a better fit.
+
+A link with several geometries gets one capsule enclosing all of them; a link with
+none keeps length 0 and radius 0 and only takes part in the kinematics.  Lengths
+and radii are fixed unless ``search_lengths=True``, which searches every non-zero
+capsule length within ``+-LENGTH_SEARCH_FRACTION`` (the capsule grows from its
+start point; child joints do not move).
+
+Why the standard library parser.  URDF is plain XML and the importer needs only
+its stable core (``link``, ``joint``, ``origin``, ``axis``, ``limit``,
+``collision``/``visual`` geometry); ``xml.etree.ElementTree`` reads that subset in
+a few lines, so no extra dependency (``urdfdom``, ``yourdfpy``, ...) is needed and
+error messages stay ours.  ROS ``package://`` paths and xacro macros are not
+resolved: expand xacro files to plain URDF first.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+
+import numpy as np
+
+from ..errors import SkeletonError
+from ..skeleton import LinkSpec, Skeleton, build_skeleton, rpy_matrix
+
+DEFAULT_MESH_RADIUS = 0.05  # metres: stand-in ball for a mesh that is not read
+LENGTH_SEARCH_FRACTION = 0.3  # search_lengths: lengths vary within +-30 %
+_EPS = 1e-12
+
+
+# --------------------------------------------------------------------------- geometry -> capsule
+
+
+class Shape:
+    """Geometry as balls whose convex hull encloses it, plus preferred capsule axes.
+
+    ``centres`` ``(n, 3)`` and ``radii`` ``(n,)`` are in the link frame; ``axes``
+    ``(k, 3)`` are candidate capsule directions (a capsule's own axis, a box's
+    axes, longest first).
+    """
+
+    def __init__(self, centres, radii, axes=()):
+        self.centres = np.asarray(centres, float).reshape(-1, 3)
+        self.radii = np.broadcast_to(np.asarray(radii, float), (len(self.centres),)).copy()
+        self.axes = np.asarray(axes, float).reshape(-1, 3)
+
+
+def sphere_shape(pos, radius) -> Shape:
+    return Shape([pos], [radius])
+
+
+def capsule_shape(pos, R, radius, half_length) -> Shape:
+    """Capsule (or enclosing capsule of a cylinder) along the local z axis of frame ``(R, pos)``."""
+    z = np.asarray(R, float)[:, 2]
+    pos = np.asarray(pos, float)
+    return Shape([pos - half_length * z, pos + half_length * z], [radius, radius], [z])
+
+
+def box_shape(pos, R, half_sizes) -> Shape:
+    """The eight corners of a box (half sizes along the local axes of frame ``(R, pos)``)."""
+    R, pos, h = np.asarray(R, float), np.asarray(pos, float), np.abs(np.asarray(half_sizes, float))
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    corners = pos + (signs * h) @ R.T
+    order = np.argsort(-h, kind="stable")
+    return Shape(corners, 0.0, R[:, order].T)
+
+
+def ellipsoid_shape(pos, R, radii) -> Shape:
+    """Enclosing capsule of an ellipsoid: along its longest axis, radius the larger other radius.
+
+    With ``a`` the longest radius and ``r`` the larger of the two others, the balls of
+    radius ``r`` at ``+-(a - r)`` span a capsule that contains the ellipsoid and
+    touches it at both tips.
+    """
+    R, pos, rad = np.asarray(R, float), np.asarray(pos, float), np.abs(np.asarray(radii, float))
+    k = int(np.argmax(rad))
+    r = float(np.max(np.delete(rad, k)))
+    d = R[:, k]
+    return Shape([pos - (rad[k] - r) * d, pos + (rad[k] - r) * d], [r, r], [d])
+
+
+def points_shape(points) -> Shape:
+    """A point set (mesh vertices), enclosed as zero-radius balls."""
+    return Shape(points, 0.0)
+
+
+def _perp_basis(d):
+    a = np.eye(3)[int(np.argmin(np.abs(d)))]
+    e1 = np.cross(d, a)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(d, e1)
+
+
+def enclosing_capsule(shapes: list[Shape]):
+    """One capsule enclosing every shape: ``(seg_start, seg_dir, length, radius)``.
+
+    Each shape is a set of balls whose convex hull encloses the geometry, and a
+    capsule is convex, so a capsule holding every ball holds the geometry.  For a
+    candidate axis ``d`` the capsule's line passes through the centre of the balls'
+    bounding rectangle across ``d``; its radius is the largest (distance to the line
+    + ball radius), and its segment is the shortest one that keeps every ball inside.
+    Candidates are the shapes' own axes (a capsule's axis, a box's axes), the
+    principal axes of the ball centres and the frame axes; the capsule of least
+    volume wins (ties go to the earlier candidate, so one capsule is reproduced
+    exactly and a box lies along its longest side).  No shape: a zero capsule.
+    """
+    shapes = [s for s in shapes if len(s.centres)]
+    if not shapes:
+        return np.zeros(3), np.array([1.0, 0.0, 0.0]), 0.0, 0.0
+    c = np.concatenate([s.centres for s in shapes])
+    r = np.concatenate([s.radii for s in shapes])
+    cands = [a for s in shapes for a in s.axes]
+    if len(c) >= 2:
+        dev = c - c.mean(0)
+        w, v = np.linalg.eigh(dev.T @ dev)
+        if w[-1] > _EPS:
+            cands += [v[:, k] for k in np.argsort(-w)]
+    cands += list(np.eye(3))
+    best = None
+    for d in cands:
+        n = np.linalg.norm(d)
+        if not n > _EPS:
+            continue
+        d = d / n
+        e1, e2 = _perp_basis(d)
+        t, u, v = c @ d, c @ e1, c @ e2
+        uc = 0.5 * (np.max(u + r) + np.min(u - r))
+        vc = 0.5 * (np.max(v + r) + np.min(v - r))
+        rho = np.hypot(u - uc, v - vc)
+        R = float(np.max(rho + r))
+        slack = np.sqrt(np.maximum((R - r) ** 2 - rho**2, 0.0))
+        t1, t0 = float(np.max(t - slack)), float(np.min(t + slack))
+        if t1 < t0:  # every ball fits in one ball of radius R: a zero-length capsule
+            t0 = t1 = 0.5 * (t0 + t1)
+        length = t1 - t0
+        volume = np.pi * R * R * length + 4.0 / 3.0 * np.pi * R**3
+        if best is None or volume < best[0] * (1 - 1e-9) - 1e-15:
+            best = (volume, uc * e1 + vc * e2 + t0 * d, d, length, R)
+    _, start, d, length, R = best
+    if length <= 1e-12:
+        length = 0.0
+    return start, d, length, R
+
+
+def length_range(length: float, search: bool):
+    """The length search range for ``search_lengths``: ``None`` (fixed) or ``+-LENGTH_SEARCH_FRACTION``."""
+    if not search or not length > 0:
+        return None
+    return ((1 - LENGTH_SEARCH_FRACTION) * length, (1 + LENGTH_SEARCH_FRACTION) * length)
+
+
+# --------------------------------------------------------------------------- URDF
+
+
+def load_urdf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0)) -> Skeleton:
+    """Read a URDF file as a :class:`~jaxpose.skeleton.Skeleton` (see the module docstring).
+
+    Args:
+      path: the ``.urdf`` file.
+      search_lengths: also search every capsule length within +-30 % (default: fixed).
+      scale_range: search range of the global scale.
+
+    Returns:
+      The skeleton; link names are the URDF link names.
+
+    Raises:
+      SkeletonError: one message naming the file and the problem.
+    """
+    path = str(path)
+    root = _read_xml(path)
+    specs, name = _urdf_specs(root, path, search_lengths)
+    return build_skeleton(name, specs, scale_range=scale_range, source=path, require_geometry=False)
+
+
+def _read_xml(path: str) -> ET.Element:
+    if not os.path.exists(path):
+        raise SkeletonError(f"{path}: skeleton file not found")
+    if os.path.isdir(path):
+        raise SkeletonError(f"{path}: is a directory, not a skeleton file")
+    try:
+        return ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise SkeletonError(f"{path}: malformed XML: {e}") from None
+    except OSError as e:
+        raise SkeletonError(f"{path}: cannot read the file ({e.__class__.__name__}: {e})") from None
+
+
+def _numbers(text, n, what, default, fail):
+    if text is None:
+        return np.asarray(default, float)
+    try:
+        a = np.array([float(x) for x in text.split()], float)
+    except ValueError:
+        a = None
+    if a is None or a.shape != (n,) or not np.all(np.isfinite(a)):
+        fail(f"{what} must be {n} number{'s' if n > 1 else ''}, got {text!r}")
+    return a
+
+
+def _origin(elem, what, fail):
+    o = elem.find("origin") if elem is not None else None
+    if o is None:
+        return np.zeros(3), np.eye(3)
+    xyz = _numbers(o.get("xyz"), 3, f"{what} <origin xyz>", (0, 0, 0), fail)
+    rpy = _numbers(o.get("rpy"), 3, f"{what} <origin rpy>", (0, 0, 0), fail)
+    return xyz, rpy_matrix(rpy)
+
+
+def _urdf_geometry(link, where, fail) -> list[Shape]:
+    elems = link.findall("collision") or link.findall("visual")
+    shapes = []
+    for k, el in enumerate(elems):
+        what = f"{where} <{el.tag}> #{k + 1}"
+        geo = el.find("geometry")
+        if geo is None or len(geo) == 0:
+            fail(f"{what} has no <geometry>")
+        g = geo[0]
+        pos, R = _origin(el, what, fail)
+
+        def need(key, n=1):
+            if g.get(key) is None:
+                fail(f"{what} <{g.tag}> needs a {key!r} attribute")
+            v = _numbers(g.get(key), n, f"{what} <{g.tag} {key}>", None, fail)
+            return float(v[0]) if n == 1 else v
+
+        if g.tag == "sphere":
+            shapes.append(sphere_shape(pos, abs(need("radius"))))
+        elif g.tag in ("cylinder", "capsule"):
+            shapes.append(capsule_shape(pos, R, abs(need("radius")), 0.5 * abs(need("length"))))
+        elif g.tag == "box":
+            shapes.append(box_shape(pos, R, 0.5 * need("size", 3)))
+        elif g.tag == "mesh":
+            s = _numbers(g.get("scale"), 3, f"{what} <mesh scale>", (1, 1, 1), fail)
+            shapes.append(sphere_shape(pos, DEFAULT_MESH_RADIUS * float(np.max(np.abs(s)))))
+        else:
+            fail(f"{what}: unsupported geometry <{g.tag}> (expected box, cylinder, sphere, capsule or mesh)")
+    return shapes
+
+
+def _urdf_specs(root, path, search_lengths):
+    def fail(msg):
+        raise SkeletonError(f"{path}: {msg}")
+
+    if root.tag != "robot":
+        fail(f"not a URDF file: the root element is <{root.tag}>, expected <robot>")
+    links = {}
+    for el in root.findall("link"):
+        name = el.get("name")
+        if not name:
+            fail("every <link> needs a non-empty 'name'")
+        if name in links:
+            fail(f"duplicate link name {name!r}")
+        links[name] = el
+    if not links:
+        fail("the robot has no links")
+
+    joint_of_child = {}  # child link -> (joint name, spec fields)
+    for k, el in enumerate(root.findall("joint")):
+        jname = el.get("name") or f"#{k + 1}"
+        where = f"joint {jname!r}"
+        jfail = lambda msg, where=where: fail(f"{where}: {msg}")  # noqa: E731
+        jtype = el.get("type")
+        ends = {}
+        for tag in ("parent", "child"):
+            e = el.find(tag)
+            if e is None or not e.get("link"):
+                jfail(f"needs a <{tag} link=...> element")
+            if e.get("link") not in links:
+                jfail(f"refers to a missing {tag} link {e.get('link')!r}")
+            ends[tag] = e.get("link")
+        if jtype == "prismatic":
+            jfail("prismatic joints are not supported (jaxpose skeletons have rotational joints only)")
+        if jtype in ("floating", "planar"):
+            jfail(f"{jtype} joints are not supported (the root pose is searched anyway; remove the joint "
+                  "and let the child link be the root)")
+        if jtype not in ("revolute", "continuous", "fixed"):
+            jfail(f"unknown joint type {jtype!r} (expected revolute, continuous or fixed)")
+        child = ends["child"]
+        if child in joint_of_child:
+            fail(f"closed loop: link {child!r} is the child of both joint {joint_of_child[child][0]!r} "
+                 f"and joint {jname!r}")
+        if child == ends["parent"]:
+            jfail(f"closed loop: link {child!r} is its own parent")
+        xyz, R = _origin(el, where, jfail)
+        spec = dict(parent=ends["parent"], offset=tuple(xyz), rest_matrix=R, attach=0.0)
+        if jtype == "fixed":
+            spec["joint"] = "fixed"
+        else:
+            axis = _numbers(el.find("axis").get("xyz") if el.find("axis") is not None else None, 3,
+                            "<axis xyz>", (1, 0, 0), jfail)
+            if not np.linalg.norm(axis) > 0:
+                jfail("the joint axis must be a non-zero vector")
+            spec.update(joint="hinge", axis=tuple(axis / np.linalg.norm(axis)))
+            if jtype == "continuous":
+                spec["limits"] = [[-180.0, 180.0]]
+            else:
+                lim = el.find("limit")
+                if lim is None:
+                    jfail("a revolute joint needs a <limit lower=... upper=...> element")
+                lo = _numbers(lim.get("lower"), 1, "<limit lower>", (0.0,), jfail)[0]
+                hi = _numbers(lim.get("upper"), 1, "<limit upper>", (0.0,), jfail)[0]
+                if lo > hi:
+                    jfail(f"inverted limits lower={lo} > upper={hi}")
+                spec["limits"] = [[float(np.rad2deg(lo)), float(np.rad2deg(hi))]]
+        joint_of_child[child] = (jname, spec)
+
+    roots = [n for n in links if n not in joint_of_child]
+    if not roots:
+        fail("closed loop: every link is the child of a joint, so there is no root link")
+    if len(roots) > 1:
+        fail(f"the links do not form one tree: {len(roots)} root links ({', '.join(map(repr, roots[:5]))}"
+             f"{', ...' if len(roots) > 5 else ''}); connect them with joints")
+    # a cycle not containing the root: walk up from every link
+    for name in links:
+        seen, n = set(), name
+        while n in joint_of_child:
+            if n in seen:
+                fail(f"closed loop: the joints around link {n!r} form a cycle")
+            seen.add(n)
+            n = joint_of_child[n][1]["parent"]
+
+    specs = []
+    for name, el in links.items():
+        start, d, length, radius = enclosing_capsule(_urdf_geometry(el, f"link {name!r}", fail))
+        geom = dict(seg_start=tuple(start), seg_dir=tuple(d), length=length, radius=radius,
+                    length_range=length_range(length, search_lengths))
+        if name in joint_of_child:
+            specs.append(LinkSpec(name=name, **joint_of_child[name][1], **geom))
+        else:
+            specs.append(LinkSpec(name=name, parent=None, joint="fixed", attach=0.0, **geom))
+    robot_name = root.get("name") or os.path.splitext(os.path.basename(path))[0]
+    return specs, robot_name

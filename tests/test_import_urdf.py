@@ -1,0 +1,246 @@
+"""URDF importer: mapping, geometry, forward kinematics against a NumPy oracle and MuJoCo, bad files."""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+
+import jax
+import numpy as np
+import pytest
+
+from jaxpose.errors import SkeletonError
+from jaxpose.io.skeleton_file import load_skeleton
+from jaxpose.io.urdf import DEFAULT_MESH_RADIUS, load_urdf
+from jaxpose.kinematics import forward_kinematics
+from jaxpose.skeleton import Pose, genome_layout
+
+FIXTURES = os.path.join(os.path.dirname(__file__), "fixtures")
+FK_TOL = 1e-5  # metres and matrix entries; jaxpose runs in float32
+
+
+def fixture(name):
+    return os.path.join(FIXTURES, f"{name}.urdf")
+
+
+# --------------------------------------------------------------------------- an independent oracle
+
+
+def _rot(axis, angle):
+    """Rotation about a unit axis via the matrix exponential of its cross-product matrix."""
+    x, y, z = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def _origin_T(el):
+    T = np.eye(4)
+    o = el.find("origin")
+    if o is not None:
+        r, p, y = map(float, (o.get("rpy") or "0 0 0").split())
+        T[:3, :3] = _rot([0, 0, 1], y) @ _rot([0, 1, 0], p) @ _rot([1, 0, 0], r)
+        T[:3, 3] = list(map(float, (o.get("xyz") or "0 0 0").split()))
+    return T
+
+
+def oracle_fk(path, q):
+    """World 4x4 transform of every link for joint values ``q`` (dict joint name -> angle); root at identity."""
+    root = ET.parse(path).getroot()
+    joints = {j.find("child").get("link"): j for j in root.findall("joint")}
+    out = {}
+
+    def T(link):
+        if link not in out:
+            j = joints.get(link)
+            if j is None:
+                out[link] = np.eye(4)
+            else:
+                M = T(j.find("parent").get("link")) @ _origin_T(j)
+                if j.get("type") != "fixed":
+                    a = j.find("axis")
+                    axis = list(map(float, a.get("xyz").split())) if a is not None else [1, 0, 0]
+                    J = np.eye(4)
+                    J[:3, :3] = _rot(axis, q[j.get("name")])
+                    M = M @ J
+                out[link] = M
+        return out[link]
+
+    for link in root.findall("link"):
+        T(link.get("name"))
+    return out
+
+
+def hinge_joint_names(path):
+    """Joint name of every hinge link, by link name."""
+    root = ET.parse(path).getroot()
+    return {j.find("child").get("link"): j.get("name") for j in root.findall("joint") if j.get("type") != "fixed"}
+
+
+def random_pose(skel, rng):
+    lo, hi = np.asarray(skel.angle_lo), np.asarray(skel.angle_hi)
+    angles = rng.uniform(lo, hi)
+    return Pose(np.zeros(3, np.float32), np.zeros(3, np.float32), np.float32(1.0),
+                angles.astype(np.float32), np.asarray(skel.length))
+
+
+def batched_fk(skel, poses):
+    stacked = jax.tree.map(lambda *a: np.stack(a), *poses)
+    return jax.jit(jax.vmap(forward_kinematics, in_axes=(None, 0)))(skel, stacked)
+
+
+# --------------------------------------------------------------------------- mapping
+
+
+def test_chain_mapping():
+    skel = load_skeleton(fixture("chain"))  # through the dispatcher
+    assert skel.name == "chain"
+    assert skel.link_names == ("base", "mount", "link1", "sensor", "link2", "tip")
+    assert skel.joint_types == ("fixed", "fixed", "hinge", "fixed", "hinge", "fixed")
+    assert skel.parents == (-1, 0, 1, 2, 3, 4)
+    assert skel.num_dof == 7 + 2
+    i = skel.index("link1")
+    np.testing.assert_allclose([skel.angle_lo[i, 0], skel.angle_hi[i, 0]], [-1.0, 1.5], atol=1e-6)
+    j = skel.index("link2")  # continuous: unlimited
+    np.testing.assert_allclose([skel.angle_lo[j, 0], skel.angle_hi[j, 0]], [-np.pi, np.pi], atol=1e-6)
+    np.testing.assert_allclose(skel.offset[skel.index("mount")], [0.1, 0.05, 0.04], atol=1e-7)
+    assert np.all(np.asarray(skel.attach) == 0)
+
+
+def test_chain_geometry():
+    skel = load_urdf(fixture("chain"))
+    b = skel.index("base")  # collision box 0.3 x 0.2 x 0.04 (the visual sphere of radius 1 is ignored)
+    assert float(skel.length[b]) == pytest.approx(0.3, abs=1e-6)
+    assert float(skel.radius[b]) == pytest.approx(np.hypot(0.1, 0.02), abs=1e-6)
+    np.testing.assert_allclose(np.abs(skel.seg_dir[b]), [1, 0, 0], atol=1e-6)
+    i = skel.index("link1")  # cylinder z in [0, 0.2], r 0.03, and a ball r 0.04 at z 0.22: one capsule
+    assert float(skel.radius[i]) == pytest.approx(0.04, abs=1e-6)
+    start, end = np.asarray(skel.seg_start[i]), np.asarray(skel.seg_start[i] + skel.length[i] * skel.seg_dir[i])
+    zs = sorted([start[2], end[2]])
+    # the cylinder's end balls (r 0.03) fit 0.01 inside the ends of a capsule of radius 0.04
+    np.testing.assert_allclose(zs, [0.01, 0.22], atol=1e-6)
+    j = skel.index("link2")  # visual-only capsule along x from 0 to 0.15
+    assert float(skel.length[j]) == pytest.approx(0.15, abs=1e-6) and float(skel.radius[j]) == pytest.approx(0.025)
+    for name in ("mount", "sensor"):  # no geometry: kinematics only
+        k = skel.index(name)
+        assert float(skel.length[k]) == 0 and float(skel.radius[k]) == 0
+
+
+def test_mesh_only_link():
+    skel = load_urdf(fixture("mesh_link"))
+    g = skel.index("gripper")
+    assert float(skel.length[g]) == 0
+    assert float(skel.radius[g]) == pytest.approx(0.5 * DEFAULT_MESH_RADIUS)
+    np.testing.assert_allclose(skel.seg_start[g], [0.03, 0, 0.01], atol=1e-7)
+
+
+def test_search_lengths_option():
+    skel = load_urdf(fixture("arm7"), search_lengths=True)
+    i = skel.index("upper_arm_link")
+    np.testing.assert_allclose([skel.length_lo[i], skel.length_hi[i]], [0.21, 0.39], rtol=1e-5)
+    w = skel.index("wrist1_link")  # a ball: zero length stays fixed
+    assert float(skel.length_lo[w]) == float(skel.length_hi[w]) == 0
+    names = genome_layout(skel).names
+    assert sum(n.endswith(".length") for n in names) == 7
+    fixed = load_urdf(fixture("arm7"))
+    assert not any(n.endswith(".length") for n in genome_layout(fixed).names)
+
+
+# --------------------------------------------------------------------------- kinematics
+
+
+@pytest.mark.parametrize("name", ["chain", "arm7", "mesh_link"])
+def test_forward_kinematics_matches_numpy_oracle(name):
+    path = fixture(name)
+    skel = load_urdf(path)
+    joint_of = hinge_joint_names(path)
+    rng = np.random.default_rng(0)
+    poses = [random_pose(skel, rng) for _ in range(8)]
+    links = batched_fk(skel, poses)
+    for k, pose in enumerate(poses):
+        q = {joint_of[n]: float(pose.angles[i, 0]) for i, n in enumerate(skel.link_names) if n in joint_of}
+        T = oracle_fk(path, q)
+        for i, n in enumerate(skel.link_names):
+            np.testing.assert_allclose(links.origin[k, i], T[n][:3, 3], atol=FK_TOL, err_msg=n)
+            np.testing.assert_allclose(links.R_world_link[k, i], T[n][:3, :3], atol=FK_TOL, err_msg=n)
+
+
+def test_arm_forward_kinematics_matches_mujoco():
+    mujoco = pytest.importorskip("mujoco")
+    path = fixture("arm7")
+    m = mujoco.MjModel.from_xml_path(path)  # MuJoCo's own URDF compiler (the file keeps every link)
+    d = mujoco.MjData(m)
+    skel = load_urdf(path)
+    rng = np.random.default_rng(5)
+    poses = [random_pose(skel, rng) for _ in range(8)]
+    links = batched_fk(skel, poses)
+    for k, pose in enumerate(poses):
+        for j in range(m.njnt):
+            d.qpos[m.jnt_qposadr[j]] = pose.angles[skel.index(m.body(m.jnt_bodyid[j]).name), 0]
+        mujoco.mj_kinematics(m, d)
+        for b in range(1, m.nbody):
+            i = skel.index(m.body(b).name)
+            np.testing.assert_allclose(links.origin[k, i], d.xpos[b], atol=FK_TOL)
+            np.testing.assert_allclose(links.R_world_link[k, i], d.xmat[b].reshape(3, 3), atol=FK_TOL)
+
+
+# --------------------------------------------------------------------------- bad files
+
+
+def robot(body):
+    return f'<?xml version="1.0"?>\n<robot name="r">\n{body}\n</robot>\n'
+
+
+LINKS = '<link name="a"/><link name="b"/><link name="c"/>'
+
+
+def joint(name, jtype, parent, child, extra=""):
+    return f'<joint name="{name}" type="{jtype}"><parent link="{parent}"/><child link="{child}"/>{extra}</joint>'
+
+
+LIMIT = '<limit lower="-1" upper="1"/>'
+
+BAD = [
+    ("<robot><link name='a'></robot>", ["malformed XML", "line"]),
+    ('<?xml version="1.0"?><sdf version="1.6"/>', ["not a URDF", "<sdf>"]),
+    (robot(""), ["no links"]),
+    (robot('<link name="a"/><link name="a"/>'), ["duplicate link", "'a'"]),
+    (robot(LINKS + joint("j1", "revolute", "a", "b", LIMIT) + joint("j2", "slider", "b", "c")),
+     ["joint 'j2'", "unknown joint type 'slider'"]),
+    (robot(LINKS + joint("j1", "prismatic", "a", "b", LIMIT) + joint("j2", "fixed", "b", "c")),
+     ["joint 'j1'", "prismatic"]),
+    (robot(LINKS + joint("j1", "floating", "a", "b") + joint("j2", "fixed", "b", "c")), ["joint 'j1'", "floating"]),
+    (robot(LINKS + joint("j1", "fixed", "a", "b") + joint("j2", "fixed", "b", "ghost")),
+     ["joint 'j2'", "missing child link 'ghost'"]),
+    (robot(LINKS + joint("j1", "fixed", "a", "c") + joint("j2", "fixed", "b", "c")),
+     ["closed loop", "'c'", "'j1'", "'j2'"]),
+    (robot(LINKS + joint("j1", "fixed", "a", "b") + joint("j2", "fixed", "b", "c") + joint("j3", "fixed", "c", "a")),
+     ["closed loop"]),
+    (robot(LINKS + '<link name="d"/>' + joint("j1", "fixed", "a", "b") + joint("j2", "fixed", "c", "d")
+           + joint("j3", "fixed", "d", "c")), ["closed loop", "cycle"]),
+    (robot(LINKS + joint("j1", "fixed", "a", "b")), ["2 root links", "'a'", "'c'"]),
+    (robot(LINKS + joint("j1", "revolute", "a", "b") + joint("j2", "fixed", "b", "c")), ["joint 'j1'", "<limit"]),
+    (robot(LINKS + joint("j1", "revolute", "a", "b", '<axis xyz="0 0 0"/>' + LIMIT) + joint("j2", "fixed", "b", "c")),
+     ["joint 'j1'", "non-zero"]),
+    (robot(LINKS + joint("j1", "fixed", "a", "b", '<origin xyz="1 2"/>') + joint("j2", "fixed", "b", "c")),
+     ["joint 'j1'", "xyz", "3 numbers"]),
+    (robot('<link name="a"><collision><geometry><cone radius="1"/></geometry></collision></link>'),
+     ["link 'a'", "unsupported geometry <cone>"]),
+    (robot('<link name="a"><visual><geometry><box/></geometry></visual></link>'), ["link 'a'", "'size'"]),
+]
+
+
+@pytest.mark.parametrize("text, words", BAD)
+def test_bad_files_raise_one_clear_error(tmp_path, text, words):
+    path = tmp_path / "robot.urdf"
+    path.write_text(text)
+    with pytest.raises(SkeletonError) as e:
+        load_skeleton(str(path))
+    msg = str(e.value)
+    assert msg.startswith(str(path)) and "\n" not in msg
+    for w in words:
+        assert w in msg, msg
+
+
+def test_missing_file():
+    with pytest.raises(SkeletonError, match="not found"):
+        load_urdf(os.path.join(FIXTURES, "no_such_robot.urdf"))
