@@ -1,17 +1,54 @@
-"""Ray-cast depth rendering of capsules (pure JAX).
+"""Synthetic depth images: ray-cast rendering, camera placement, a Kinect-v1-like
+sensor model, random natural poses and the paper's two data sets (pure; no files).
 
-The camera sits at the origin looking along +z (x right, y down).  Every pixel's
-ray is intersected analytically with every capsule (a cylinder with two
-hemispherical caps); the nearest hit's z is the pixel's depth, 0 where nothing
-is hit.
+Rendering.  The camera sits at the origin looking along +z (x right, y down).
+Every pixel's ray is intersected analytically with every capsule (a cylinder with
+two hemispherical caps; a sphere is a capsule of zero length) and every oriented
+box; the nearest hit's z is the pixel's depth, 0 where nothing is hit.
+
+Camera placement.  A skeleton is posed in its own world frame (z up).  A camera
+is a 4x4 world->camera matrix ``T_cam_world`` (:func:`look_at`,
+:func:`orbit_extrinsics`: elevation above the horizontal, azimuth about world z,
+distance to a target).  :func:`pose_to_camera` folds the camera transform into
+the root of a :class:`~jaxpose.skeleton.Pose`, so forward kinematics of the
+returned pose gives the links directly in the camera frame.
+
+Sensor model (:class:`SensorModel`, each part switchable, driven by one
+``jax.random`` key):
+
+1. axial noise, ``sigma(z) = noise_coeff * z**2`` (Khoshelham & Elberink 2012,
+   Kinect v1: ``1.425e-3 z^2`` m for a disparity error of 1/2 pixel;
+   ``2.85e-3 z^2`` for a full pixel);
+2. disparity quantisation: the Kinect v1 measures disparity ``d = f b / z`` in
+   1/8 pixel steps (IR focal ``f = 580`` px, baseline ``b = 0.075`` m), so depth
+   takes the values ``f b / (n / 8)``; the step grows as ``z^2 / (8 f b)``
+   (about 1.1 cm at 2 m);
+3. missing pixels along depth discontinuities (silhouette edges): each pixel
+   within ``edge_width`` pixels of a jump larger than ``edge_threshold`` is
+   dropped with probability ``edge_drop``;
+4. random holes: ``num_holes`` discs of random radius dropped anywhere;
+5. the working range: depths outside ``[min_range, max_range]`` read 0.
+
+The background image that comes with a scene is a background model: the mean of
+several independent sensor draws (see :func:`render_view`), so that subtracting
+it (:func:`~jaxpose.camera.foreground_mask`) leaves little of the scene.
 """
 
 from __future__ import annotations
 
+import functools
+import itertools
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .camera import Intrinsics
+from .camera import KINECT_V1, Intrinsics, project
+from .kinematics import forward_kinematics
+from .skeleton import Pose, Skeleton, rpy_matrix
 
 
 def pixel_rays(k: Intrinsics) -> jax.Array:
@@ -69,3 +106,625 @@ def render_capsules(start, end, radius, k: Intrinsics) -> jax.Array:
     """Depth image ``(H, W)`` in metres of capsules given in the camera frame (0: no hit)."""
     return _render(pixel_rays(k), jnp.asarray(start, jnp.float32), jnp.asarray(end, jnp.float32),
                    jnp.asarray(radius, jnp.float32))
+
+
+# --------------------------------------------------------------------------- scenes
+
+
+def ray_box_distance(rd: jax.Array, centre: jax.Array, rotation: jax.Array, half: jax.Array) -> jax.Array:
+    """Distance along unit rays ``rd (..., 3)`` from the origin to an oriented box (inf: miss).
+
+    The box has centre ``centre (3,)``, axes the columns of ``rotation (3, 3)`` and
+    half extents ``half (3,)``.  A camera inside the box sees nothing of it.
+    """
+    o = rotation.T @ (-centre)  # ray origin in the box frame
+    d = rd @ rotation  # ray directions in the box frame
+    inv = jnp.where(jnp.abs(d) > 1e-12, 1.0 / jnp.where(jnp.abs(d) > 1e-12, d, 1.0), 1e12)
+    t1 = (-half - o) * inv
+    t2 = (half - o) * inv
+    t_near = jnp.max(jnp.minimum(t1, t2), axis=-1)
+    t_far = jnp.min(jnp.maximum(t1, t2), axis=-1)
+    hit = (t_near <= t_far) & (t_near > 0)
+    return jnp.where(hit, t_near, jnp.inf)
+
+
+class Scene(NamedTuple):
+    """Background geometry (a floor and clutter) as capsules and oriented boxes.
+
+    The frame (world or camera) is the caller's; :func:`transform_scene` moves it.
+    Spheres are capsules with ``start == end``.
+    """
+
+    cap_start: np.ndarray  # (C, 3)
+    cap_end: np.ndarray  # (C, 3)
+    cap_radius: np.ndarray  # (C,)
+    box_centre: np.ndarray  # (B, 3)
+    box_rotation: np.ndarray  # (B, 3, 3) columns: the box axes
+    box_half: np.ndarray  # (B, 3) half extents
+
+
+def empty_scene() -> Scene:
+    z3 = np.zeros((0, 3), np.float32)
+    return Scene(z3, z3, np.zeros(0, np.float32), z3, np.zeros((0, 3, 3), np.float32), z3)
+
+
+def merge_scenes(*scenes: Scene) -> Scene:
+    return Scene(*(np.concatenate([np.asarray(s[f], np.float32) for s in scenes], 0) for f in range(6)))
+
+
+def transform_scene(scene: Scene, T: np.ndarray) -> Scene:
+    """Apply the rigid 4x4 transform ``T`` to every primitive."""
+    T = np.asarray(T, np.float64)
+    R, t = T[:3, :3], T[:3, 3]
+    f = lambda p: (np.asarray(p, np.float64) @ R.T + t).astype(np.float32)  # noqa: E731
+    return Scene(f(scene.cap_start), f(scene.cap_end), np.asarray(scene.cap_radius, np.float32),
+                 f(scene.box_centre), (R @ np.asarray(scene.box_rotation, np.float64)).astype(np.float32),
+                 np.asarray(scene.box_half, np.float32))
+
+
+@jax.jit
+def _render_scene(rays, cap_start, cap_end, cap_radius, box_centre, box_rotation, box_half):
+    C = cap_start.shape[0]
+
+    def closer(carry, t, i):
+        tmin, ids = carry
+        near = t < tmin
+        return jnp.where(near, t, tmin), jnp.where(near, i, ids)
+
+    def cap(carry, c):
+        pa, pb, r, i = c
+        t = ray_capsule_distance(rays, pa, pb, r)
+        return closer(carry, jnp.where(r > 0, t, jnp.inf), i), None
+
+    def box(carry, b):
+        c, R, h, i = b
+        return closer(carry, ray_box_distance(rays, c, R, h), i), None
+
+    carry = (jnp.full(rays.shape[:-1], jnp.inf, rays.dtype), jnp.full(rays.shape[:-1], -1, jnp.int32))
+    if C:
+        carry, _ = jax.lax.scan(cap, carry, (cap_start, cap_end, cap_radius, jnp.arange(C, dtype=jnp.int32)))
+    if box_centre.shape[0]:
+        ids = C + jnp.arange(box_centre.shape[0], dtype=jnp.int32)
+        carry, _ = jax.lax.scan(box, carry, (box_centre, box_rotation, box_half, ids))
+    tmin, ids = carry
+    z = tmin * rays[..., 2]
+    hit = jnp.isfinite(z)
+    return jnp.where(hit, z, 0.0), jnp.where(hit, ids, -1)
+
+
+def render_scene(scene: Scene, k: Intrinsics, with_ids: bool = False):
+    """Noise-free depth image ``(H, W)`` in metres of a scene given in the camera frame (0: no hit).
+
+    With ``with_ids`` also the index of the primitive seen at every pixel: capsules
+    ``0 .. C-1``, then boxes ``C .. C+B-1``; -1 where nothing is hit.
+    """
+    f = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    z, ids = _render_scene(pixel_rays(k), *(f(a) for a in scene))
+    return (np.asarray(z), np.asarray(ids)) if with_ids else np.asarray(z)
+
+
+def capsule_scene(start, end, radius) -> Scene:
+    """A scene made of capsules only (e.g. a posed skeleton's links)."""
+    e = empty_scene()
+    return e._replace(cap_start=np.asarray(start, np.float32).reshape(-1, 3),
+                      cap_end=np.asarray(end, np.float32).reshape(-1, 3),
+                      cap_radius=np.asarray(radius, np.float32).reshape(-1))
+
+
+def floor_scene(height: float, centre=(0.0, 0.0), half_size: float = 3.0, thickness: float = 0.02) -> Scene:
+    """A square floor slab (world frame, z up) whose top face lies at ``z = height``."""
+    e = empty_scene()
+    c = np.array([[centre[0], centre[1], height - thickness / 2]], np.float32)
+    return e._replace(box_centre=c, box_rotation=np.eye(3, dtype=np.float32)[None],
+                      box_half=np.array([[half_size, half_size, thickness / 2]], np.float32))
+
+
+def random_clutter(rng, floor_height: float, centre, clear_radius: float, num: int = 3,
+                   camera_azimuth_deg: float | None = None, spread: float = 1.2) -> Scene:
+    """``num`` random boxes, spheres and upright capsules standing on the floor (world frame).
+
+    They stand between ``clear_radius`` and ``clear_radius + spread`` metres (in
+    the floor plane) from ``centre``; with ``camera_azimuth_deg`` only on the side
+    away from the camera (behind and beside the subject), so they rarely hide it.
+    """
+    rng = np.random.default_rng(rng)
+    caps, boxes = [], []
+    for _ in range(num):
+        kind = rng.integers(3)
+        size = rng.uniform(0.08, 0.3) * max(clear_radius, 0.3) / 0.6
+        if camera_azimuth_deg is None:
+            az = rng.uniform(-np.pi, np.pi)
+        else:
+            az = np.deg2rad(camera_azimuth_deg) + np.pi + rng.uniform(-0.45 * np.pi, 0.45 * np.pi)
+        dist = clear_radius + 1.5 * size + rng.uniform(0, spread)
+        x, y = centre[0] + dist * np.cos(az), centre[1] + dist * np.sin(az)
+        if kind == 0:  # box
+            h = np.array([size, size * rng.uniform(0.5, 1.5), size * rng.uniform(0.5, 2.0)])
+            yaw = rng.uniform(-np.pi, np.pi)
+            R = rpy_matrix(np.array([0.0, 0.0, yaw]))
+            boxes.append((np.array([x, y, floor_height + h[2]]), R, h))
+        elif kind == 1:  # sphere resting on the floor
+            p = np.array([x, y, floor_height + size])
+            caps.append((p, p, size))
+        else:  # upright capsule (a post)
+            r = size * 0.5
+            hgt = size * rng.uniform(2.0, 5.0)
+            caps.append((np.array([x, y, floor_height + r]), np.array([x, y, floor_height + r + hgt]), r))
+    s = empty_scene()
+    if caps:
+        s = s._replace(cap_start=np.array([c[0] for c in caps], np.float32),
+                       cap_end=np.array([c[1] for c in caps], np.float32),
+                       cap_radius=np.array([c[2] for c in caps], np.float32))
+    if boxes:
+        s = s._replace(box_centre=np.array([b[0] for b in boxes], np.float32),
+                       box_rotation=np.array([b[1] for b in boxes], np.float32),
+                       box_half=np.array([b[2] for b in boxes], np.float32))
+    return s
+
+
+# --------------------------------------------------------------------------- cameras
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """World->camera 4x4 matrix of a camera at ``eye`` looking at ``target``.
+
+    Camera frame: x right, y down, z forward; ``up`` (world) points up in the image.
+    """
+    eye, target, up = (np.asarray(a, np.float64) for a in (eye, target, up))
+    z = target - eye
+    n = np.linalg.norm(z)
+    if not n > 0:
+        raise ValueError("look_at: eye and target coincide")
+    z = z / n
+    x = np.cross(z, up)
+    if np.linalg.norm(x) < 1e-9:  # looking straight along up: pick any right vector
+        x = np.cross(z, np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0]))
+    x = x / np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])  # rows: camera axes in world coordinates
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ eye
+    return T
+
+
+def orbit_extrinsics(target, elevation_deg: float, azimuth_deg: float, distance: float) -> np.ndarray:
+    """World->camera matrix of a camera ``distance`` metres from ``target``, looking at it.
+
+    ``elevation_deg`` (the inclination) is the angle of the line of sight below the
+    horizontal (0: level, 90: straight down); ``azimuth_deg`` is the direction of
+    the camera from the target about world z (0: on the +x side, 90: on +y).
+    """
+    el, az = np.deg2rad(elevation_deg), np.deg2rad(azimuth_deg)
+    target = np.asarray(target, np.float64)
+    eye = target + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    return look_at(eye, target)
+
+
+def matrix_to_rpy(R) -> np.ndarray:
+    """Inverse of :func:`~jaxpose.skeleton.rpy_matrix`: ``(roll, pitch, yaw)`` with pitch in [-pi/2, pi/2]."""
+    R = np.asarray(R, np.float64)
+    sp = np.clip(-R[2, 0], -1.0, 1.0)
+    pitch = np.arcsin(sp)
+    if abs(sp) < 1 - 1e-9:
+        roll = np.arctan2(R[2, 1], R[2, 2])
+        yaw = np.arctan2(R[1, 0], R[0, 0])
+    else:  # gimbal lock: only roll -/+ yaw is defined; put it all in yaw
+        roll = 0.0
+        yaw = np.arctan2(-R[0, 1], R[1, 1])
+    return np.array([roll, pitch, yaw])
+
+
+def pose_to_camera(pose: Pose, T_cam_world) -> Pose:
+    """The same posed skeleton with its root expressed in the camera frame.
+
+    ``forward_kinematics(skel, pose_to_camera(pose, T))`` equals the world-frame
+    links mapped by ``T``.
+    """
+    T = np.asarray(T_cam_world, np.float64)
+    R_cw, t_cw = T[:3, :3], T[:3, 3]
+    R = R_cw @ rpy_matrix(np.asarray(pose.root_rpy, np.float64))
+    t = R_cw @ np.asarray(pose.root_t, np.float64) + t_cw
+    return pose._replace(root_t=jnp.asarray(t, jnp.float32), root_rpy=jnp.asarray(matrix_to_rpy(R), jnp.float32))
+
+
+def capsule_points(start, end, radius) -> np.ndarray:
+    """Corners of the axis-aligned boxes around every capsule: ``(8 L, 3)`` (for framing)."""
+    s, e, r = (np.asarray(a, np.float64) for a in (start, end, radius))
+    lo = np.minimum(s, e) - r[:, None]
+    hi = np.maximum(s, e) + r[:, None]
+    corners = [np.where(np.array(m, bool), hi, lo) for m in itertools.product([0, 1], repeat=3)]
+    return np.concatenate(corners, 0)
+
+
+# --------------------------------------------------------------------------- sensor model
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """A Kinect-v1-like depth sensor (see the module docstring); every part can be switched off."""
+
+    noise: bool = True
+    noise_coeff: float = 1.425e-3  # sigma = noise_coeff * z^2, metres
+    quantise: bool = True
+    focal_ir: float = 580.0  # IR camera focal length, pixels
+    baseline: float = 0.075  # projector-camera baseline, metres
+    subpixel: int = 8  # disparity steps per pixel
+    edges: bool = True
+    edge_threshold: float = 0.04  # metres between neighbouring pixels
+    edge_width: int = 1  # pixels either side of a discontinuity
+    edge_drop: float = 0.6  # probability that an edge pixel is missing
+    holes: bool = True
+    num_holes: int = 8
+    hole_radius: tuple[float, float] = (1.0, 4.0)  # pixels
+    min_range: float = 0.4  # metres; nearer or farther reads 0 (Kinect v1: specified 0.8-4 m)
+    max_range: float = 4.0
+
+    @staticmethod
+    def off() -> "SensorModel":
+        """The ideal sensor: no noise, no quantisation, no missing pixels (the range still applies)."""
+        return SensorModel(noise=False, quantise=False, edges=False, holes=False)
+
+
+def quantise_depth(z: jax.Array, model: SensorModel = SensorModel()) -> jax.Array:
+    """Round depth to the nearest depth the disparity quantiser can output (0 stays 0)."""
+    fb = model.focal_ir * model.baseline
+    d = jnp.where(z > 0, fb / jnp.where(z > 0, z, 1.0), 0.0)
+    dq = jnp.round(d * model.subpixel) / model.subpixel
+    return jnp.where((z > 0) & (dq > 0), fb / jnp.where(dq > 0, dq, 1.0), 0.0)
+
+
+def discontinuity_mask(z: jax.Array, threshold: float, width: int = 1) -> jax.Array:
+    """Valid pixels within ``width`` pixels of a depth jump > ``threshold`` or of a missing pixel."""
+    valid = z > 0
+    zp = jnp.pad(z, 1, mode="edge")
+    vp = jnp.pad(valid, 1, mode="edge")
+    H, W = z.shape
+    edge = jnp.zeros_like(valid)
+    for dv, du in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        zn = zp[1 + dv: 1 + dv + H, 1 + du: 1 + du + W]
+        vn = vp[1 + dv: 1 + dv + H, 1 + du: 1 + du + W]
+        edge |= valid & (~vn | (jnp.abs(zn - z) > threshold))
+    if width > 1:
+        edge = jax.lax.reduce_window(edge.astype(jnp.float32), 0.0, jax.lax.max,
+                                     (2 * width - 1, 2 * width - 1), (1, 1), "SAME") > 0
+    return edge & valid
+
+
+def apply_sensor(key: jax.Array, depth, model: SensorModel = SensorModel()) -> np.ndarray:
+    """Apply the sensor model to a noise-free depth image (metres, 0: nothing).  Reproducible in ``key``."""
+    return np.asarray(_apply_sensor(key, jnp.asarray(depth, jnp.float32), model))
+
+
+@functools.partial(jax.jit, static_argnames=("model",))
+def _apply_sensor(key, z, model: SensorModel):
+    k_noise, k_edge, k_centre, k_rad = jax.random.split(key, 4)
+    valid = z > 0
+    out = z
+    if model.edges:
+        edge = discontinuity_mask(z, model.edge_threshold, model.edge_width)
+        drop = jax.random.uniform(k_edge, z.shape) < model.edge_drop
+        valid &= ~(edge & drop)
+    if model.noise:
+        out = out + model.noise_coeff * out**2 * jax.random.normal(k_noise, z.shape)
+    if model.quantise:
+        out = quantise_depth(out, model)
+    if model.holes and model.num_holes > 0:
+        H, W = z.shape
+        c = jax.random.uniform(k_centre, (model.num_holes, 2)) * jnp.array([H, W], jnp.float32)
+        r = jax.random.uniform(k_rad, (model.num_holes,), minval=model.hole_radius[0], maxval=model.hole_radius[1])
+        v, u = jnp.meshgrid(jnp.arange(H, dtype=jnp.float32), jnp.arange(W, dtype=jnp.float32), indexing="ij")
+        d2 = (v[None] - c[:, 0, None, None]) ** 2 + (u[None] - c[:, 1, None, None]) ** 2
+        valid &= ~jnp.any(d2 <= (r**2)[:, None, None], axis=0)
+    valid &= (out >= model.min_range) & (out <= model.max_range)
+    return jnp.where(valid, out, 0.0)
+
+
+# --------------------------------------------------------------------------- random poses
+
+_fk = jax.jit(forward_kinematics)
+
+
+def _segment_distance(p1, q1, p2, q2) -> float:
+    """Closest distance between segments ``p1q1`` and ``p2q2`` (NumPy, Ericson's method)."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e, f = d1 @ d1, d2 @ d2, d2 @ r
+    if a <= 1e-12 and e <= 1e-12:
+        return float(np.linalg.norm(r))
+    if a <= 1e-12:
+        s, t = 0.0, np.clip(f / e, 0, 1)
+    else:
+        c = d1 @ r
+        if e <= 1e-12:
+            t, s = 0.0, np.clip(-c / a, 0, 1)
+        else:
+            b = d1 @ d2
+            den = a * e - b * b
+            s = np.clip((b * f - c * e) / den, 0, 1) if den > 1e-12 else 0.0
+            t = (b * s + f) / e
+            if t < 0:
+                t, s = 0.0, np.clip(-c / a, 0, 1)
+            elif t > 1:
+                t, s = 1.0, np.clip((b - c) / a, 0, 1)
+    return float(np.linalg.norm((p1 + d1 * s) - (p2 + d2 * t)))
+
+
+def self_collisions(skel: Skeleton, pose: Pose, tolerance: float = 0.8) -> float:
+    """Total interpenetration (metres) of capsules that are not parent/child or siblings.
+
+    Two capsules collide when their axes come closer than ``tolerance * (r1 + r2)``.
+    """
+    links = _fk(skel, pose)
+    s, e, r = (np.asarray(a, np.float64) for a in (links.start, links.end, links.radius))
+    par = skel.parents
+    total = 0.0
+    for i in range(skel.num_links):
+        for j in range(i + 1, skel.num_links):
+            if par[j] == i or par[i] == j or par[i] == par[j]:
+                continue
+            gap = _segment_distance(s[i], e[i], s[j], e[j]) - tolerance * (r[i] + r[j])
+            total += max(0.0, -gap)
+    return total
+
+
+def random_pose(
+    skel: Skeleton,
+    rng,
+    angle_spread: float = 0.3,
+    length_spread: float = 0.0,
+    scale: float = 1.0,
+    yaw: float | None = None,
+    max_tries: int = 30,
+) -> Pose:
+    """A random natural pose in the skeleton's world frame (root at the origin, upright).
+
+    Joint angles follow a normal distribution around the rest pose (zero clipped
+    into the limits) with standard deviation ``angle_spread`` times half the limit
+    range, truncated to the limits (resampled, then clipped).  Lengths are uniform
+    in ``rest * (1 +- length_spread)`` within the length range.  The root yaw is
+    uniform unless given; roll and pitch are 0.  Poses whose capsules interpenetrate
+    (:func:`self_collisions`) are rejected; after ``max_tries`` the least colliding
+    sample is returned.  ``rng``: a NumPy generator or seed.
+    """
+    rng = np.random.default_rng(rng)
+    lo, hi = np.asarray(skel.angle_lo, np.float64), np.asarray(skel.angle_hi, np.float64)
+    rest = np.clip(0.0, lo, hi)
+    std = angle_spread * (hi - lo) / 2
+    llo, lhi = np.asarray(skel.length_lo, np.float64), np.asarray(skel.length_hi, np.float64)
+    lrest = np.asarray(skel.length, np.float64)
+    best, best_c = None, np.inf
+    for _ in range(max(1, max_tries)):
+        q = rest + std * rng.standard_normal(rest.shape)
+        for _ in range(5):
+            bad = (q < lo) | (q > hi)
+            if not bad.any():
+                break
+            q = np.where(bad, rest + std * rng.standard_normal(rest.shape), q)
+        q = np.clip(q, lo, hi)
+        lengths = np.clip(lrest * (1 + length_spread * rng.uniform(-1, 1, lrest.shape)), llo, lhi)
+        y = rng.uniform(-np.pi, np.pi) if yaw is None else yaw
+        pose = Pose(jnp.zeros(3, jnp.float32), jnp.asarray([0.0, 0.0, y], jnp.float32),
+                    jnp.asarray(scale, jnp.float32), jnp.asarray(q, jnp.float32), jnp.asarray(lengths, jnp.float32))
+        c = self_collisions(skel, pose)
+        if c < best_c:
+            best, best_c = pose, c
+        if c == 0:
+            break
+    return best
+
+
+# --------------------------------------------------------------------------- views
+
+
+class View(NamedTuple):
+    """One synthetic depth image and everything known about it (NumPy; camera frame)."""
+
+    depth: np.ndarray  # (H, W) metres after the sensor model (0: no measurement)
+    background: np.ndarray | None  # (H, W) the scene without the subject (sensor model applied), or None
+    clean: np.ndarray  # (H, W) noise-free depth of subject + scene
+    pose: Pose  # the pose in the camera frame
+    pose_world: Pose  # the pose in the skeleton's world frame
+    start: np.ndarray  # (L, 3) capsule ends in the camera frame
+    end: np.ndarray  # (L, 3)
+    radius: np.ndarray  # (L,)
+    visible: np.ndarray  # (L,) fraction of each link's axis seen unoccluded in the clean image
+    T_cam_world: np.ndarray  # (4, 4)
+    intrinsics: Intrinsics
+
+
+def subject_frame(skel: Skeleton, pose_world: Pose) -> tuple[np.ndarray, float, float]:
+    """``(centre, radius, floor_height)`` of a posed skeleton in its world frame."""
+    links = _fk(skel, pose_world)
+    pts = capsule_points(links.start, links.end, links.radius)
+    lo, hi = pts.min(0), pts.max(0)
+    centre = (lo + hi) / 2
+    return centre, float(np.linalg.norm(hi - lo) / 2), float(lo[2])
+
+
+def link_visibility(start, end, radius, ids, clean_depth, k: Intrinsics, samples: int = 9,
+                    tol: float = 0.01) -> np.ndarray:
+    """Fraction of points along each link's axis that project inside the image and are not hidden.
+
+    ``ids`` is the primitive index image of :func:`render_scene` (links first): a
+    point is visible when its pixel shows its own link, or anything not in front of it.
+    """
+    s, e, r = (np.asarray(a, np.float64) for a in (start, end, radius))
+    t = np.linspace(0, 1, samples)[None, :, None]
+    p = s[:, None] + t * (e - s)[:, None]  # (L, S, 3)
+    uv = np.round(project(p, k)).astype(int)
+    H, W = clean_depth.shape
+    inside = (uv[..., 0] >= 0) & (uv[..., 0] < W) & (uv[..., 1] >= 0) & (uv[..., 1] < H) & (p[..., 2] > 0)
+    u = np.clip(uv[..., 0], 0, W - 1)
+    v = np.clip(uv[..., 1], 0, H - 1)
+    seen = clean_depth[v, u]
+    own = ids[v, u] == np.arange(len(s))[:, None]
+    ok = inside & (seen > 0) & (own | (seen >= p[..., 2] - r[:, None] - tol))
+    return ok.mean(1)
+
+
+def render_view(
+    skel: Skeleton,
+    pose_world: Pose,
+    T_cam_world,
+    k: Intrinsics = KINECT_V1,
+    scene: Scene | None = None,
+    sensor: SensorModel | None = SensorModel(),
+    key: jax.Array | None = None,
+    background_frames: int = 8,
+) -> View:
+    """Render a posed skeleton (world frame) and an optional world-frame ``scene``.
+
+    With a scene the background depth (the scene alone) is returned too, as a
+    background model would be captured: the mean of ``background_frames``
+    independent draws of the sensor model, valid where any draw measured.
+    ``sensor=None`` gives clean images.
+    """
+    if key is None:
+        key = jax.random.PRNGKey(0)
+    T = np.asarray(T_cam_world, np.float64)
+    pose_cam = pose_to_camera(pose_world, T)
+    links = _fk(skel, pose_cam)
+    start, end, radius = (np.asarray(a, np.float32) for a in (links.start, links.end, links.radius))
+    subject = capsule_scene(start, end, radius)
+    bg_scene = transform_scene(scene, T) if scene is not None else None
+    full = merge_scenes(subject, bg_scene) if bg_scene is not None else subject
+    clean, ids = render_scene(full, k, with_ids=True)
+    k_img, k_bg = jax.random.split(key)
+    depth = apply_sensor(k_img, clean, sensor) if sensor is not None else clean
+    background = None
+    if bg_scene is not None:
+        bg_clean = render_scene(bg_scene, k)
+        if sensor is None:
+            background = bg_clean
+        else:  # a background model: the mean of several frames, where any frame measured
+            frames = np.stack([apply_sensor(kk, bg_clean, sensor) for kk in jax.random.split(k_bg, background_frames)])
+            n = (frames > 0).sum(0)
+            background = np.where(n > 0, frames.sum(0) / np.maximum(n, 1), 0.0).astype(np.float32)
+    vis = link_visibility(start, end, radius, ids, clean, k)
+    return View(depth, background, clean, pose_cam, pose_world, start, end, radius, vis, T, k)
+
+
+def default_distance(radius: float, k: Intrinsics, margin: float = 1.25) -> float:
+    """Distance at which a sphere of ``radius`` fills the image's smaller field of view (times ``margin``)."""
+    half_fov = min(math.atan2(k.width / 2, k.fx), math.atan2(k.height / 2, k.fy))
+    return margin * radius / math.sin(half_fov)
+
+
+def render_orbit(
+    skel: Skeleton,
+    pose_world: Pose,
+    elevation_deg: float = 20.0,
+    azimuth_deg: float = 0.0,
+    distance: float | None = None,
+    k: Intrinsics = KINECT_V1,
+    floor: bool = False,
+    clutter: int = 0,
+    sensor: SensorModel | None = SensorModel(),
+    seed: int = 0,
+) -> View:
+    """Convenience: camera on an orbit around the subject's centre, optional floor and clutter.
+
+    The floor touches the subject's lowest point; ``distance=None`` frames the subject.
+    """
+    if distance is None:
+        distance = default_distance(subject_frame(skel, pose_world)[1], k)
+    return _orbit_view(skel, pose_world, elevation_deg, azimuth_deg, distance, k, floor, clutter, sensor,
+                       [seed], [seed, 1])
+
+
+# --------------------------------------------------------------------------- data sets
+
+
+class Sample(NamedTuple):
+    """One image of a data set: its name, its view and descriptive metadata."""
+
+    name: str
+    view: View
+    meta: dict
+
+
+def spider_dataset(
+    skel: Skeleton,
+    seed: int = 0,
+    k: Intrinsics = KINECT_V1,
+    num_poses: int = 4,
+    inclinations=(0.0, 15.0, 30.0, 45.0, 60.0),
+    distance: float = 1.2,
+    sensor: SensorModel | None = SensorModel(),
+    floor: bool = True,
+    clutter: int = 3,
+) -> list[Sample]:
+    """The paper's spider set: ``num_poses`` poses, each seen from every inclination.
+
+    Poses are :func:`random_pose` draws (seeded by ``seed``); each pose gets its own
+    azimuth, so low inclinations show legs hiding legs.  20 images by default.
+    """
+    out = []
+    for p in range(num_poses):
+        rng = np.random.default_rng([seed, 0, p])
+        pose = random_pose(skel, rng, angle_spread=0.45, length_spread=0.0)
+        azimuth = float(rng.uniform(0, 360))
+        for j, incl in enumerate(inclinations):
+            view = _orbit_view(skel, pose, incl, azimuth, distance, k, floor, clutter, sensor,
+                               [seed, 0, p, j], [seed, 0, p])
+            out.append(Sample(f"pose{p}_incl{int(round(incl)):02d}", view,
+                              dict(pose=p, inclination_deg=float(incl), azimuth_deg=azimuth, distance=distance)))
+    return out
+
+
+def humanoid_dataset(
+    skel: Skeleton,
+    seed: int = 0,
+    k: Intrinsics = KINECT_V1,
+    num_subjects: int = 4,
+    poses_per_subject: int = 8,
+    scales=(0.85, 1.0, 1.1, 0.95),
+    distance: float = 2.8,
+    elevation_deg: float = 10.0,
+    sensor: SensorModel | None = SensorModel(),
+    floor: bool = True,
+    clutter: int = 3,
+) -> list[Sample]:
+    """The paper's humanoid set: ``num_subjects`` body shapes x ``poses_per_subject`` natural poses.
+
+    A subject has a global scale (``scales``, cycled) and per-link length factors
+    in ``[0.8, 1.2]``, drawn once per orbit of the skeleton's symmetry group so that
+    left and right limbs match.  The camera faces the subject from the front half.
+    """
+    from .metrics import link_orbits
+
+    orbits = link_orbits(skel)
+    out = []
+    for s in range(num_subjects):
+        rng = np.random.default_rng([seed, 1, s])
+        factor = np.ones(skel.num_links)
+        for orb in orbits:
+            factor[list(orb)] = rng.uniform(0.8, 1.2)
+        lengths = np.clip(np.asarray(skel.length) * factor, np.asarray(skel.length_lo), np.asarray(skel.length_hi))
+        scale = float(scales[s % len(scales)])
+        for p in range(poses_per_subject):
+            prng = np.random.default_rng([seed, 2, s, p])
+            pose = random_pose(skel, prng, angle_spread=0.3, length_spread=0.0, scale=scale, yaw=0.0)
+            pose = pose._replace(lengths=jnp.asarray(lengths, jnp.float32))
+            azimuth = float(prng.uniform(-60, 60))
+            view = _orbit_view(skel, pose, elevation_deg, azimuth, distance, k, floor, clutter, sensor,
+                               [seed, 1, s, p], [seed, 1, s])
+            out.append(Sample(f"subject{s}_pose{p}", view,
+                              dict(subject=s, pose=p, scale=scale, inclination_deg=elevation_deg,
+                                   azimuth_deg=azimuth, distance=distance)))
+    return out
+
+
+def _orbit_view(skel, pose, elevation, azimuth, distance, k, floor, clutter, sensor, seed_seq, clutter_seq):
+    centre, radius, floor_z = subject_frame(skel, pose)
+    T = orbit_extrinsics(centre, elevation, azimuth, distance)
+    scene = None
+    if floor or clutter:
+        scene = empty_scene()
+        if floor:
+            scene = merge_scenes(scene, floor_scene(floor_z, centre[:2], half_size=max(3.0, 2 * distance)))
+        if clutter:
+            scene = merge_scenes(scene, random_clutter(np.random.default_rng(clutter_seq), floor_z, centre[:2],
+                                                       radius, clutter, azimuth))
+    key = jax.random.PRNGKey(int(np.random.default_rng(seed_seq).integers(2**31)))
+    return render_view(skel, pose, T, k, scene, sensor, key)

@@ -1,0 +1,1 @@
+"""Subcommands of the `jaxpose` command line; each module exports `register(subparsers)`."""

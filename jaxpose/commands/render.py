@@ -1,0 +1,109 @@
+"""``jaxpose render``: a synthetic depth image (16-bit PNG, millimetres) and its ground truth."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "render",
+        help="render a synthetic Kinect-like depth image of a posed skeleton, with its ground truth",
+        description="Render a skeleton in a random, rest or given pose seen from a camera on an orbit around it. "
+        "Writes a 16-bit PNG in millimetres and optionally a ground-truth JSON and the background-only image.",
+    )
+    p.add_argument("--skeleton", required=True, metavar="FILE",
+                   help="skeleton file or shipped name (spider, humanoid, ...)")
+    p.add_argument("--pose", default="random", metavar="POSE",
+                   help="'random' (seeded natural pose), 'rest', or a truth/result JSON (default: random)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the pose, clutter and sensor noise (default 0)")
+    p.add_argument("--elevation", type=float, default=20.0, metavar="DEG",
+                   help="camera inclination below the horizontal, degrees (default 20)")
+    p.add_argument("--azimuth", type=float, default=0.0, metavar="DEG",
+                   help="camera direction about the vertical, degrees (0: on the skeleton's +x side)")
+    p.add_argument("--distance", type=float, default=None, metavar="M",
+                   help="camera distance to the subject's centre, metres (default: frame the subject)")
+    p.add_argument("--intrinsics", default="kinect", help="'kinect', 'fx,fy,cx,cy' or a JSON file (default kinect)")
+    p.add_argument("--size", default=None, metavar="WxH", help="image size, e.g. 320x240 (intrinsics scale with it)")
+    p.add_argument("--noise", action=argparse.BooleanOptionalAction, default=True,
+                   help="apply the Kinect v1 sensor model (noise, quantisation, missing pixels; default on)")
+    p.add_argument("--floor", action="store_true", help="render a floor under the subject")
+    p.add_argument("--clutter", type=int, nargs="?", const=3, default=0, metavar="N",
+                   help="render N objects around the subject (default 0; 3 without a number)")
+    p.add_argument("--out", required=True, metavar="PNG", help="depth image to write (16-bit PNG, millimetres)")
+    p.add_argument("--truth", default=None, metavar="JSON", help="ground truth to write")
+    p.add_argument("--background-out", default=None, metavar="PNG",
+                   help="background-only depth image to write (needs --floor or --clutter)")
+    p.set_defaults(func=run)
+
+
+def _size(spec: str):
+    from ..errors import ConfigError
+
+    try:
+        w, h = (int(v) for v in spec.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--size {spec!r}: expected WIDTHxHEIGHT, e.g. 320x240") from None
+    if not (8 <= w <= 4096 and 8 <= h <= 4096):
+        raise ConfigError(f"--size {spec!r}: width and height must lie in 8..4096")
+    return w, h
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from .. import render as R
+    from ..errors import ConfigError
+    from ..io.depth_file import parse_intrinsics
+    from ..io.skeleton_file import load_skeleton
+    from ..io.truth import read_pose, write_view
+    from ..skeleton import rest_pose
+
+    skel = load_skeleton(args.skeleton)
+    k = parse_intrinsics(args.intrinsics)
+    if args.size:
+        w, h = _size(args.size)
+        sx, sy = w / k.width, h / k.height
+        k = k._replace(fx=k.fx * sx, fy=k.fy * sy, cx=(k.cx + 0.5) * sx - 0.5, cy=(k.cy + 0.5) * sy - 0.5,
+                       width=w, height=h)
+    if args.clutter < 0 or args.clutter > 50:
+        raise ConfigError(f"--clutter {args.clutter}: expected 0..50 objects")
+    if args.distance is not None and not (np.isfinite(args.distance) and args.distance > 0):
+        raise ConfigError(f"--distance {args.distance}: must be a positive number of metres")
+    if not (np.isfinite(args.elevation) and -90 <= args.elevation <= 90):
+        raise ConfigError(f"--elevation {args.elevation}: must lie in [-90, 90] degrees")
+    if not np.isfinite(args.azimuth):
+        raise ConfigError(f"--azimuth {args.azimuth}: must be a number of degrees")
+    if args.background_out and not (args.floor or args.clutter):
+        raise ConfigError("--background-out needs a background: add --floor and/or --clutter")
+    for p in (args.out, args.truth, args.background_out):
+        if p and not os.path.isdir(os.path.dirname(os.path.abspath(p))):
+            raise ConfigError(f"{p}: folder {os.path.dirname(p) or '.'} does not exist")
+
+    if args.pose == "random":
+        pose = R.random_pose(skel, args.seed)
+    elif args.pose == "rest":
+        pose = rest_pose(skel)
+    else:
+        pose = read_pose(args.pose, skel, world=True)
+    sensor = R.SensorModel() if args.noise else None
+    distance = args.distance or R.default_distance(R.subject_frame(skel, pose)[1], k)
+    view = R.render_orbit(skel, pose, args.elevation, args.azimuth, distance, k, floor=args.floor,
+                          clutter=args.clutter, sensor=sensor, seed=args.seed)
+    seen = int((view.depth > 0).sum())
+    meta = {"pose": args.pose, "seed": args.seed, "elevation_deg": args.elevation, "azimuth_deg": args.azimuth,
+            "distance": float(distance), "floor": bool(args.floor), "clutter": int(args.clutter)}
+    if args.truth:
+        write_view(args.out, args.truth, skel, view, args.background_out, args.skeleton, sensor, meta)
+    else:
+        from ..io.depth_file import save_depth_png
+
+        save_depth_png(args.out, view.depth)
+        if args.background_out:
+            save_depth_png(args.background_out, view.background)
+    print(f"{args.out}: {k.width}x{k.height} depth image of {skel.name} ({seen} pixels with depth)"
+          + (f"; truth {args.truth}" if args.truth else "")
+          + (f"; background {args.background_out}" if args.background_out else ""))
+    return 0
+

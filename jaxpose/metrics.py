@@ -1,0 +1,297 @@
+"""Pose accuracy metrics and skeleton symmetries (pure NumPy; no files).
+
+Every metric compares predicted and true capsule end points, link by link
+(``start``/``end`` arrays of shape ``(L, 3)``, metres, in the same order).
+
+- **PCP** (percentage of correct parts, the paper's "links placed in the correct
+  position"): a link is correct when *both* its end points lie within half of its
+  *true* length of the true end points (:func:`pcp`).  ``pcp_10cm`` is the
+  stricter variant with a fixed 10 cm radius.
+- **MPJPE**: the mean distance between predicted and true end points, over the
+  ``2 L`` link end points (starts and ends of every link; a joint shared by a
+  parent's end and a child's start counts once for each link), in millimetres.
+- **PCK@10cm**: the fraction of those ``2 L`` end points within 10 cm.
+
+Symmetry.  Interchangeable parts (the spider's legs, a humanoid's left and right
+limbs) cannot be told apart in a depth image, so an estimate with two legs
+swapped is as good as the truth.  :func:`automorphisms` finds every permutation
+of the links that maps the tree onto itself (parents onto parents) and keeps
+each link's *attributes*: joint type, joint limits, length and length range,
+radius and ``attach``.  The anchor offsets, rest rotations, hinge axes and
+segment directions are *not* attributes: they say where a part sits, not what
+it is (the spider's legs differ only in them).  Symmetric scores take, for
+every metric separately, the best value over the whole group (computed exactly
+by matching sibling subtrees bottom-up with the Hungarian algorithm, so large
+groups are never enumerated); the strict scores use the identity only, so a
+symmetric score is never worse than the strict one.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections import defaultdict
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .skeleton import JOINT_DOF, Skeleton
+
+PCK_THRESHOLD = 0.10  # metres
+PCP_FRACTION = 0.5
+
+
+# --------------------------------------------------------------------------- per-link metrics
+
+
+def _arrays(*xs):
+    out = [np.asarray(x, np.float64).reshape(-1, 3) for x in xs]
+    if len({a.shape for a in out}) != 1:
+        raise ValueError(f"start/end arrays differ in shape: {[a.shape for a in out]}")
+    return out
+
+
+def endpoint_errors(pred_start, pred_end, true_start, true_end) -> np.ndarray:
+    """Distances ``(L, 2)`` between predicted and true starts and ends, metres."""
+    ps, pe, ts, te = _arrays(pred_start, pred_end, true_start, true_end)
+    return np.stack([np.linalg.norm(ps - ts, axis=-1), np.linalg.norm(pe - te, axis=-1)], -1)
+
+
+def pcp(pred_start, pred_end, true_start, true_end, fraction: float = PCP_FRACTION) -> np.ndarray:
+    """Per-link correctness ``(L,)``: both end points within ``fraction`` x the true length."""
+    err = endpoint_errors(pred_start, pred_end, true_start, true_end)
+    ts, te = _arrays(true_start, true_end)
+    tol = fraction * np.linalg.norm(te - ts, axis=-1)
+    return np.all(err <= tol[:, None], axis=-1)
+
+
+def pcp_abs(pred_start, pred_end, true_start, true_end, threshold: float = PCK_THRESHOLD) -> np.ndarray:
+    """Per-link correctness ``(L,)``: both end points within ``threshold`` metres."""
+    return np.all(endpoint_errors(pred_start, pred_end, true_start, true_end) <= threshold, axis=-1)
+
+
+def mpjpe(pred_start, pred_end, true_start, true_end) -> float:
+    """Mean end point error over the ``2 L`` link end points, millimetres."""
+    return float(1000.0 * endpoint_errors(pred_start, pred_end, true_start, true_end).mean())
+
+
+def pck(pred_start, pred_end, true_start, true_end, threshold: float = PCK_THRESHOLD) -> float:
+    """Fraction of the ``2 L`` link end points within ``threshold`` metres of the truth."""
+    return float((endpoint_errors(pred_start, pred_end, true_start, true_end) <= threshold).mean())
+
+
+def _pair_costs(pred_start, pred_end, true_start, true_end) -> dict[str, np.ndarray]:
+    """Cost of matching truth link ``i`` with predicted link ``j`` for every metric: ``(L, L)`` each."""
+    ps, pe, ts, te = _arrays(pred_start, pred_end, true_start, true_end)
+    ds = np.linalg.norm(ts[:, None] - ps[None], axis=-1)
+    de = np.linalg.norm(te[:, None] - pe[None], axis=-1)
+    tl = np.linalg.norm(te - ts, axis=-1)[:, None]
+    return {
+        "pcp": -((ds <= PCP_FRACTION * tl) & (de <= PCP_FRACTION * tl)).astype(float),
+        "pcp_10cm": -((ds <= PCK_THRESHOLD) & (de <= PCK_THRESHOLD)).astype(float),
+        "mpjpe_mm": ds + de,
+        "pck_10cm": -((ds <= PCK_THRESHOLD).astype(float) + (de <= PCK_THRESHOLD)),
+    }
+
+
+def scores(pred_start, pred_end, true_start, true_end) -> dict[str, float]:
+    """All four metrics for links given in matching order."""
+    return {
+        "pcp": float(pcp(pred_start, pred_end, true_start, true_end).mean()),
+        "pcp_10cm": float(pcp_abs(pred_start, pred_end, true_start, true_end).mean()),
+        "mpjpe_mm": mpjpe(pred_start, pred_end, true_start, true_end),
+        "pck_10cm": pck(pred_start, pred_end, true_start, true_end),
+    }
+
+
+# --------------------------------------------------------------------------- symmetries
+
+
+def link_attributes(skel: Skeleton, decimals: int = 5) -> list[tuple]:
+    """What makes a link the kind of link it is (see the module docstring), rounded for comparison."""
+    r = lambda a: tuple(np.round(np.asarray(a, np.float64), decimals).reshape(-1).tolist())  # noqa: E731
+    out = []
+    for i, jt in enumerate(skel.joint_types):
+        dof = JOINT_DOF[jt]
+        out.append((
+            jt,
+            r(np.asarray(skel.angle_lo)[i, :dof]), r(np.asarray(skel.angle_hi)[i, :dof]),
+            r(np.asarray(skel.length)[i]), r(np.asarray(skel.length_lo)[i]), r(np.asarray(skel.length_hi)[i]),
+            r(np.asarray(skel.radius)[i]), r(np.asarray(skel.attach)[i]),
+        ))
+    return out
+
+
+def _forms(skel: Skeleton) -> list[int]:
+    """Canonical isomorphism class of every link's subtree (equal ids: interchangeable subtrees)."""
+    attrs = link_attributes(skel)
+    children = skel.children
+    table: dict = {}
+    form = [0] * skel.num_links
+    for i in reversed(range(skel.num_links)):  # children come after their parents
+        key = (attrs[i], tuple(sorted(form[c] for c in children[i])))
+        form[i] = table.setdefault(key, len(table))
+    return form
+
+
+def _roots(skel: Skeleton) -> tuple[int, ...]:
+    return tuple(i for i, p in enumerate(skel.parents) if p < 0)
+
+
+def _classes(nodes, form) -> list[list[int]]:
+    groups = defaultdict(list)
+    for n in nodes:
+        groups[form[n]].append(n)
+    return [groups[f] for f in sorted(groups)]
+
+
+def automorphism_group_order(skel: Skeleton) -> int:
+    """Number of symmetries of the skeleton: product over nodes of ``k!`` per class of ``k`` alike children."""
+    form = _forms(skel)
+    order = 1
+    for nodes in [_roots(skel), *skel.children]:
+        for cls in _classes(nodes, form):
+            order *= math.factorial(len(cls))
+    return order
+
+
+def automorphisms(skel: Skeleton, limit: int = 100_000) -> np.ndarray:
+    """Every symmetry as a permutation ``perm (G, L)``: link ``i`` maps onto link ``perm[g, i]``.
+
+    The identity comes first.  Raises ``ValueError`` when there are more than ``limit``.
+    """
+    order = automorphism_group_order(skel)
+    if order > limit:
+        raise ValueError(f"skeleton {skel.name!r} has {order} symmetries, more than the limit of {limit}")
+    form = _forms(skel)
+    children = skel.children
+
+    def iso(pairs):
+        """All extensions of a list of (u, v) subtree pairs to full mappings (lists of dicts)."""
+        if not pairs:
+            return [{}]
+        (u, v), rest = pairs[0], pairs[1:]
+        out = []
+        for sub in _match_children(children[u], children[v]):
+            for tail in iso(rest):
+                out.append({u: v, **sub, **tail})
+        return out
+
+    def _match_children(cu, cv):
+        options = [{}]
+        for cls_u, cls_v in zip(_classes(cu, form), _classes(cv, form)):
+            new = []
+            for perm in _permutations(cls_v):
+                for m in iso(list(zip(cls_u, perm))):
+                    for o in options:
+                        new.append({**o, **m})
+            options = new
+        return options
+
+    roots = _roots(skel)
+    maps = _match_children(roots, roots)
+    perms = np.array([[m[i] for i in range(skel.num_links)] for m in maps], np.int64).reshape(-1, skel.num_links)
+    ident = np.arange(skel.num_links)
+    is_id = np.all(perms == ident, axis=1)
+    return np.concatenate([perms[is_id], perms[~is_id]], 0)
+
+
+def _permutations(items):
+    return list(itertools.permutations(items))
+
+
+def link_orbits(skel: Skeleton) -> list[tuple[int, ...]]:
+    """Sets of links that some symmetry maps onto each other (e.g. the four spider thighs)."""
+    form = _forms(skel)
+    key: list = []
+    for i, p in enumerate(skel.parents):
+        key.append((form[i], key[p] if p >= 0 else None))
+    groups = defaultdict(list)
+    for i, k in enumerate(key):
+        groups[k].append(i)
+    return sorted((tuple(g) for g in groups.values()), key=lambda g: g[0])
+
+
+def best_matching(skel: Skeleton, cost: np.ndarray) -> np.ndarray:
+    """The symmetry ``perm (L,)`` minimising ``sum_i cost[i, perm[i]]`` (exact, without enumeration).
+
+    ``cost[i, j]``: cost of matching true link ``i`` with predicted link ``j``.
+    """
+    cost = np.asarray(cost, np.float64)
+    form = _forms(skel)
+    children = skel.children
+    memo: dict = {}
+
+    def sub(u, v):
+        """Best cost and mapping of subtree ``u`` onto the alike subtree ``v``."""
+        if (u, v) not in memo:
+            c, m = match(children[u], children[v])
+            memo[(u, v)] = (cost[u, v] + c, {u: v, **m})
+        return memo[(u, v)]
+
+    def match(cu, cv):
+        total, mapping = 0.0, {}
+        for cls_u, cls_v in zip(_classes(cu, form), _classes(cv, form)):
+            if len(cls_u) == 1:
+                c, m = sub(cls_u[0], cls_v[0])
+                total += c
+                mapping.update(m)
+                continue
+            C = np.array([[sub(a, b)[0] for b in cls_v] for a in cls_u])
+            rows, cols = linear_sum_assignment(C)
+            for r_, c_ in zip(rows, cols):
+                c, m = sub(cls_u[r_], cls_v[c_])
+                total += c
+                mapping.update(m)
+        return total, mapping
+
+    roots = _roots(skel)
+    _, mapping = match(roots, roots)
+    return np.array([mapping[i] for i in range(skel.num_links)], np.int64)
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def evaluate(
+    pred_start, pred_end, true_start, true_end, skel: Skeleton | None = None, names=None
+) -> dict:
+    """Strict and symmetry-aware scores of a predicted pose against the truth.
+
+    Links are in the same order in all arrays (the skeleton's order when ``skel``
+    is given).  Returns ``{"num_links", "symmetries", "strict": {...},
+    "symmetric": {...}, "per_link": {...}, "matching": {...}}`` where each score
+    block holds ``pcp``, ``pcp_10cm``, ``pck_10cm`` (fractions) and ``mpjpe_mm``.
+    Without a skeleton the symmetric block equals the strict one.
+    """
+    ps, pe, ts, te = _arrays(pred_start, pred_end, true_start, true_end)
+    L = len(ts)
+    if skel is not None and skel.num_links != L:
+        raise ValueError(f"skeleton {skel.name!r} has {skel.num_links} links, the poses have {L}")
+    names = list(names) if names is not None else (list(skel.link_names) if skel is not None else
+                                                   [str(i) for i in range(L)])
+    strict = scores(ps, pe, ts, te)
+    sym = dict(strict)
+    matching = np.arange(L)
+    if skel is not None:
+        costs = _pair_costs(ps, pe, ts, te)
+        for metric, C in costs.items():
+            perm = best_matching(skel, C)
+            s = scores(ps[perm], pe[perm], ts, te)[metric]
+            # the identity is in the group, so the best is never worse than the strict value
+            sym[metric] = min(s, strict[metric]) if metric == "mpjpe_mm" else max(s, strict[metric])
+            if metric == "mpjpe_mm":
+                matching = perm
+    err = endpoint_errors(ps, pe, ts, te)
+    per_link = {
+        n: {"correct": bool(c), "start_error_mm": float(1000 * e[0]), "end_error_mm": float(1000 * e[1])}
+        for n, c, e in zip(names, pcp(ps, pe, ts, te), err)
+    }
+    return {
+        "num_links": L,
+        "symmetries": automorphism_group_order(skel) if skel is not None else 1,
+        "strict": strict,
+        "symmetric": sym,
+        "per_link": per_link,
+        "matching": {names[i]: names[int(j)] for i, j in enumerate(matching)},
+    }
