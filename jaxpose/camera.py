@@ -59,17 +59,30 @@ def foreground_mask(
     far: float = 8.0,
     background: np.ndarray | None = None,
     background_tolerance: float = 0.05,
+    background_noise: float = 0.0045,
+    min_neighbours: int = 2,
 ) -> np.ndarray:
     """Pixels that carry a measurement within ``[near, far]`` metres and, when a
-    background depth image is given, lie more than ``background_tolerance`` metres in
-    front of it (pixels where the background has no measurement are kept)."""
+    background depth image ``b`` is given, lie more than
+    ``background_tolerance + background_noise * b**2`` metres in front of it (the
+    second part follows the depth sensor's noise, which grows with the square of
+    depth: 0.0045 is three standard deviations of a Kinect v1).  Pixels where the
+    background has no measurement are kept.  Isolated speckles (foreground pixels
+    with fewer than ``min_neighbours`` foreground pixels among their 8 neighbours)
+    are dropped."""
     z = depth.astype(np.float64)
     with np.errstate(invalid="ignore"):
         mask = np.isfinite(z) & (z > 0) & (z >= near) & (z <= far)
         if background is not None:
             b = background.astype(np.float64)
             bvalid = np.isfinite(b) & (b > 0)
-            mask &= ~bvalid | (z < b - background_tolerance)
+            tol = background_tolerance + background_noise * np.where(bvalid, b, 0.0) ** 2
+            mask &= ~bvalid | (z < b - tol)
+    if min_neighbours > 0:
+        m = np.pad(mask, 1).astype(np.int32)
+        h, w = mask.shape
+        n = sum(m[1 + dy:1 + dy + h, 1 + dx:1 + dx + w] for dy in (-1, 0, 1) for dx in (-1, 0, 1)) - mask
+        mask &= n >= min_neighbours
     return mask
 
 

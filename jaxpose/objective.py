@@ -84,8 +84,9 @@ def point_capsule_distance(points, start, end, radius):
 def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = 1024) -> jax.Array:
     """The paper's data term for a population: ``start, end (P, L, 3)``, ``radius (P, L)``.
 
-    Streams over blocks of points with a running minimum over links, so memory is
-    ``O(P * L + P * block)``; no ``P x N x L`` array is formed.  Returns ``(P,)``.
+    Streams over blocks of points (outer scan) and over links (inner scan) with a
+    running minimum, on separate coordinate arrays, so memory is
+    ``O(P * L + P * block)``: no ``P x N x L`` array is ever formed.  Returns ``(P,)``.
     """
     pts, w = cloud.points, cloud.weights
     N = pts.shape[0]
@@ -98,29 +99,31 @@ def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = 1024) -> jax
     px, py, pz = (pts[:, k].reshape(nb, B) for k in range(3))
     wb = w.reshape(nb, B)
 
-    a = start
     ab = end - start
     inv = 1.0 / jnp.maximum(jnp.sum(ab * ab, -1), _EPS)  # (P, L)
-    a_ab = jnp.sum(a * ab, -1)  # (P, L)
-    L = start.shape[-2]
+    a_ab = jnp.sum(start * ab, -1)  # (P, L)
+    # link-major (L, P, ...) so the inner scan walks over links
+    links = (jnp.moveaxis(start, -2, 0), jnp.moveaxis(ab, -2, 0), inv.T, a_ab.T, jnp.moveaxis(radius, -1, 0))
     inv_sigma = 1.0 / sigma
+    P = start.shape[0]
 
-    def block_cost(carry, xs):
+    def block_cost(total, xs):
         bx, by, bz, bw = xs  # (B,)
-        best = None
-        for l in range(L):
-            ax, ay, az = (a[:, l, k][:, None] for k in range(3))
-            ux, uy, uz = (ab[:, l, k][:, None] for k in range(3))
-            t = (bx * ux + by * uy + bz * uz - a_ab[:, l][:, None]) * inv[:, l][:, None]
-            t = jnp.clip(t, 0.0, 1.0)
-            dx = bx - ax - t * ux
-            dy = by - ay - t * uy
-            dz = bz - az - t * uz
-            d = jnp.abs(jnp.sqrt(jnp.maximum(dx * dx + dy * dy + dz * dz, _EPS)) - radius[:, l][:, None])
-            best = d if best is None else jnp.minimum(best, d)
-        return carry + jnp.sum(bw * jnp.log1p(best * inv_sigma), -1), None
 
-    total, _ = jax.lax.scan(block_cost, jnp.zeros(start.shape[0], pts.dtype), (px, py, pz, wb))
+        def link(best, lk):
+            a, u, iv, c, r = lk  # (P, 3), (P, 3), (P,), (P,), (P,)
+            ux, uy, uz = u[:, 0:1], u[:, 1:2], u[:, 2:3]
+            t = jnp.clip((bx * ux + by * uy + bz * uz - c[:, None]) * iv[:, None], 0.0, 1.0)
+            dx = bx - a[:, 0:1] - t * ux
+            dy = by - a[:, 1:2] - t * uy
+            dz = bz - a[:, 2:3] - t * uz
+            d = jnp.abs(jnp.sqrt(jnp.maximum(dx * dx + dy * dy + dz * dz, _EPS)) - r[:, None])
+            return jnp.minimum(best, d), None
+
+        best, _ = jax.lax.scan(link, jnp.full((P, B), jnp.inf, pts.dtype), links)
+        return total + jnp.sum(bw * jnp.log1p(best * inv_sigma), -1), None
+
+    total, _ = jax.lax.scan(block_cost, jnp.zeros(P, pts.dtype), (px, py, pz, wb))
     return total / jnp.maximum(jnp.sum(w), _EPS)
 
 

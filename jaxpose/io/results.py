@@ -9,6 +9,12 @@ import tempfile
 import numpy as np
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write(path: str, write, binary: bool = False) -> None:
     """Call ``write(fileobj)`` on a temporary file beside ``path``, then rename it over ``path``.
 
@@ -20,6 +26,7 @@ def atomic_write(path: str, write, binary: bool = False) -> None:
     try:
         with os.fdopen(fd, "wb" if binary else "w") as f:
             write(f)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the file the usual mode
         os.replace(tmp, path)
     except BaseException:
         try:

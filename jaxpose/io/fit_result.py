@@ -1,0 +1,93 @@
+"""The ``result.json`` written by ``jaxpose fit`` (schema in the README).
+
+Every number except those under ``"timing"`` is bit-identical for the same
+inputs, seed and config on CPU.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+from importlib import metadata
+
+import numpy as np
+
+from ..skeleton import JOINT_DOF, Skeleton
+
+SCHEMA_VERSION = 1
+
+
+def file_sha256(path: str | None) -> str | None:
+    if path is None:
+        return None
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def package_versions() -> dict:
+    out = {"python": platform.python_version()}
+    for p in ("jaxpose", "jax", "jaxlib", "evosax", "optax", "numpy", "imageio"):
+        try:
+            out[p] = metadata.version(p)
+        except metadata.PackageNotFoundError:
+            out[p] = None
+    return out
+
+
+def links_table(skel: Skeleton, links) -> list[dict]:
+    """Every link by name with its parent, joint anchor, capsule end points and radius."""
+    origin, start, end, radius = (np.asarray(a, np.float64) for a in (links.origin, links.start, links.end, links.radius))
+    return [
+        {
+            "name": n,
+            "parent": skel.link_names[p] if p >= 0 else None,
+            "origin": origin[i].tolist(),
+            "start": start[i].tolist(),
+            "end": end[i].tolist(),
+            "radius": float(radius[i]),
+        }
+        for i, (n, p) in enumerate(zip(skel.link_names, skel.parents))
+    ]
+
+
+def params_table(skel: Skeleton, pose) -> dict:
+    angles = np.asarray(pose.angles, np.float64)
+    lengths = np.asarray(pose.lengths, np.float64)
+    return {
+        "root_translation": np.asarray(pose.root_t, np.float64).tolist(),
+        "root_rpy": np.asarray(pose.root_rpy, np.float64).tolist(),
+        "scale": float(pose.scale),
+        "joints": {n: angles[i, : JOINT_DOF[j]].tolist() for i, (n, j) in enumerate(zip(skel.link_names, skel.joint_types))},
+        "lengths": {n: float(lengths[i]) for i, n in enumerate(skel.link_names)},
+    }
+
+
+def result_document(skel: Skeleton, skeleton_file: str | None, result, config, seed: int, inputs: dict) -> dict:
+    """Assemble the JSON document of one fit (plain Python types)."""
+    return {
+        "schema": SCHEMA_VERSION,
+        "skeleton": {
+            "name": skel.name, "file": skeleton_file, "sha256": file_sha256(skeleton_file) if skeleton_file else None,
+            "num_links": skel.num_links, "dof": skel.num_dof,
+        },
+        "input": inputs,
+        "algorithm": config.algorithm,
+        "config": config.to_dict(),
+        "seed": int(seed),
+        "frame": "camera (x right, y down, z forward), metres",
+        "links": links_table(skel, result.links),
+        "params": params_table(skel, result.pose),
+        "genome": np.asarray(result.genome, np.float64).tolist(),
+        "cost": float(result.cost),
+        "cost_history": np.asarray(result.history, np.float64).tolist(),
+        "evaluations": {
+            "objective": int(result.objective_evaluations),
+            "gradient": int(result.gradient_evaluations),
+            "point_to_capsule_distances": float(result.distance_evaluations),
+        },
+        "versions": package_versions(),
+        "timing": {"wall_seconds": float(result.wall_time)},
+    }
