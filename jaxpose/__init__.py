@@ -1,3 +1,38 @@
-"""jaxpose: pose of an arbitrary kinematic skeleton from a single depth image."""
+"""jaxpose: the pose of an arbitrary kinematic skeleton from a single depth image.
+
+The pure functional core (usable inside your own ``jax.jit``/``jax.vmap``):
+
+- skeletons: :class:`Skeleton`, :class:`Pose`, :func:`rest_pose`, :func:`genome_layout`,
+  :func:`genome_bounds`, :func:`encode`, :func:`decode`
+- kinematics: :func:`forward_kinematics` -> :class:`Links`
+- objective: :class:`Cloud`, :class:`ObjectiveConfig`, :func:`paper_cost`, :func:`data_cost`,
+  :func:`population_cost`, :func:`observe`, :func:`cloud_spread`
+- search: :func:`fit` (pure), :func:`fit_cloud`, :class:`Fitter`, :class:`FitConfig`, :class:`FitResult`,
+  :class:`BranchSwapGA`, :class:`BoundedHillClimbing`
+- depth: :class:`Intrinsics`, :data:`KINECT_V1`, :func:`depth_to_cloud`, :func:`points_to_cloud`
+
+The edges (files): :func:`load_skeleton` (native TOML/JSON, URDF, MJCF), :func:`load_depth`,
+:func:`parse_intrinsics`, :func:`fit_depth_file`.  Errors for bad input derive from
+:class:`JaxposeError`.
+"""
 
 __version__ = "0.1.0"
+
+from .camera import KINECT_V1, Intrinsics, depth_to_cloud, points_to_cloud, project
+from .errors import ConfigError, DepthError, IntrinsicsError, JaxposeError, SkeletonError
+from .io.depth_file import load_depth, parse_intrinsics
+from .io.skeleton_file import load_skeleton, shipped_skeletons
+from .kinematics import Links, forward_kinematics
+from .objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, observe, paper_cost, population_cost
+from .pipeline import DepthOptions, fit_depth_file
+from .search import BoundedHillClimbing, BranchSwapGA, FitConfig, Fitter, FitResult, fit, fit_cloud
+from .skeleton import Pose, Skeleton, decode, encode, genome_bounds, genome_layout, rest_pose
+
+__all__ = [
+    "KINECT_V1", "BoundedHillClimbing", "BranchSwapGA", "Cloud", "ConfigError", "DepthError", "DepthOptions",
+    "FitConfig", "FitResult", "Fitter", "Intrinsics", "IntrinsicsError", "JaxposeError", "Links",
+    "ObjectiveConfig", "Pose", "Skeleton", "SkeletonError", "cloud_spread", "data_cost", "decode",
+    "depth_to_cloud", "encode", "fit", "fit_cloud", "fit_depth_file", "forward_kinematics", "genome_bounds",
+    "genome_layout", "load_depth", "load_skeleton", "observe", "paper_cost", "parse_intrinsics",
+    "points_to_cloud", "population_cost", "project", "rest_pose", "shipped_skeletons",
+]
