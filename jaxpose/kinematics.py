@@ -36,6 +36,69 @@ def joint_rotations(skel: Skeleton, angles: jax.Array) -> jax.Array:
     return skel.rest_rotation @ Rj
 
 
+# Trees at most this deep are composed level by level in unrolled Python (one fused
+# step per level); deeper ones (long chains) with a ``lax.scan`` over the levels, whose
+# compile time does not grow with the depth (unrolled, a 250-link chain took ~25 s).
+UNROLL_MAX_LEVELS = 16
+
+
+def _mat3(a, b):
+    """Batched 3x3 products as broadcast sums: XLA:CPU mis-lays out the batched
+    ``dot_general`` that nested vmaps (islands x population) make of ``a @ b``."""
+    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], -2)
+
+
+def _compose_unrolled(levels, parents, R_root, root_t, R_local, anchor):
+    L = len(parents)
+    R_w = jnp.zeros((L, 3, 3), R_local.dtype)
+    t_w = jnp.zeros((L, 3), R_local.dtype)
+    for level in levels:
+        idx = np.asarray(level)
+        p = parents[idx]
+        if np.all(p < 0):
+            R_p = jnp.broadcast_to(R_root, (len(idx), 3, 3))
+            t_p = jnp.broadcast_to(root_t, (len(idx), 3))
+        else:
+            R_p, t_p = R_w[p], t_w[p]
+        R_w = R_w.at[idx].set(_mat3(R_p, R_local[idx]))
+        t_w = t_w.at[idx].set(t_p + jnp.einsum("lij,lj->li", R_p, anchor[idx]))
+    return R_w, t_w
+
+
+def _compose_scan(levels, parents, R_root, root_t, R_local, anchor):
+    """Same as :func:`_compose_unrolled`, scanning over levels padded to the widest one.
+
+    Frames live in an array of ``L + 1 + W`` slots: the links, the root frame (slot
+    ``L``) and ``W`` scratch slots that the padding entries of a level write to.
+    """
+    L = len(parents)
+    D, W = len(levels), max(len(level) for level in levels)
+    root = L
+    idx_tab = np.tile(np.arange(L + 1, L + 1 + W), (D, 1))
+    par_tab = np.full((D, W), root)
+    for k, level in enumerate(levels):
+        lev = np.asarray(level)
+        idx_tab[k, : len(lev)] = lev
+        par_tab[k, : len(lev)] = np.where(parents[lev] < 0, root, parents[lev])
+    dt = R_local.dtype
+    R_loc = jnp.concatenate([R_local, jnp.broadcast_to(jnp.eye(3, dtype=dt), (1 + W, 3, 3))])
+    anc = jnp.concatenate([anchor.astype(dt), jnp.zeros((1 + W, 3), dt)])
+    R0 = jnp.zeros((L + 1 + W, 3, 3), dt).at[root].set(jnp.asarray(R_root, dt))
+    t0 = jnp.zeros((L + 1 + W, 3), dt).at[root].set(jnp.asarray(root_t, dt))
+
+    def step(carry, xs):
+        R, t = carry
+        idx, p = xs
+        R_p, t_p = R[p], t[p]
+        R = R.at[idx].set(_mat3(R_p, R_loc[idx]), unique_indices=True)
+        t = t.at[idx].set(t_p + jnp.einsum("lij,lj->li", R_p, anc[idx]), unique_indices=True)
+        return (R, t), None
+
+    tabs = (jnp.asarray(idx_tab, jnp.int32), jnp.asarray(par_tab, jnp.int32))
+    (R_w, t_w), _ = jax.lax.scan(step, (R0, t0), tabs)
+    return R_w[:L], t_w[:L]
+
+
 def forward_kinematics(skel: Skeleton, pose: Pose) -> Links:
     """World-frame frames and capsule end points of every link for one pose.
 
@@ -51,18 +114,11 @@ def forward_kinematics(skel: Skeleton, pose: Pose) -> Links:
     parent_tip = jnp.where((parents >= 0)[:, None], parent_tip, 0.0)
     anchor = scale * (skel.offset + skel.attach[:, None] * parent_tip)  # (L, 3) in parent frame
 
-    R_w = jnp.zeros((L, 3, 3), R_local.dtype)
-    t_w = jnp.zeros((L, 3), R_local.dtype)
-    for level in skel.levels:
-        idx = np.asarray(level)
-        p = parents[idx]
-        if np.all(p < 0):
-            R_p = jnp.broadcast_to(R_root, (len(idx), 3, 3))
-            t_p = jnp.broadcast_to(pose.root_t, (len(idx), 3))
-        else:
-            R_p, t_p = R_w[p], t_w[p]
-        R_w = R_w.at[idx].set(R_p @ R_local[idx])
-        t_w = t_w.at[idx].set(t_p + jnp.einsum("lij,lj->li", R_p, anchor[idx]))
+    levels = skel.levels
+    if len(levels) <= UNROLL_MAX_LEVELS:
+        R_w, t_w = _compose_unrolled(levels, parents, R_root, pose.root_t, R_local, anchor)
+    else:
+        R_w, t_w = _compose_scan(levels, parents, R_root, pose.root_t, R_local, anchor)
 
     s_local = scale * skel.seg_start
     e_local = scale * (skel.seg_start + pose.lengths[:, None] * skel.seg_dir)

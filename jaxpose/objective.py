@@ -52,24 +52,31 @@ class ObjectiveConfig:
 
     sigma: float | None = None  # None: cloud_spread(cloud)
     sigma_factor: float = 1.0  # multiplies the spread
-    free_space_weight: float = 0.25
+    free_space_weight: float = 1.0
     free_space_samples: int = 6
     free_space_grid: int = 40
     block: int = 1024  # points per streamed block in the kernel
 
 
+def _present(cloud: Cloud):
+    """Points with the padding (weight 0) zeroed, so that whatever coordinates the
+    padding holds (even NaN) cannot leak into sums as ``0 * nan``."""
+    w = cloud.weights
+    return jnp.where((w > 0)[:, None], cloud.points, 0.0), w
+
+
 def cloud_spread(cloud: Cloud) -> jax.Array:
     """sigma: RMS distance of the weighted points from their weighted centroid."""
-    w = cloud.weights
+    pts, w = _present(cloud)
     wsum = jnp.maximum(jnp.sum(w), _EPS)
-    c = jnp.sum(cloud.points * w[:, None], 0) / wsum
-    d2 = jnp.sum((cloud.points - c) ** 2, -1)
+    c = jnp.sum(pts * w[:, None], 0) / wsum
+    d2 = jnp.sum((pts - c) ** 2, -1)
     return jnp.sqrt(jnp.maximum(jnp.sum(w * d2) / wsum, _EPS))
 
 
 def cloud_centre(cloud: Cloud) -> jax.Array:
-    w = cloud.weights
-    return jnp.sum(cloud.points * w[:, None], 0) / jnp.maximum(jnp.sum(w), _EPS)
+    pts, w = _present(cloud)
+    return jnp.sum(pts * w[:, None], 0) / jnp.maximum(jnp.sum(w), _EPS)
 
 
 def point_capsule_distance(points, start, end, radius):
@@ -88,9 +95,9 @@ def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = 1024) -> jax
     running minimum, on separate coordinate arrays, so memory is
     ``O(P * L + P * block)``: no ``P x N x L`` array is ever formed.  Returns ``(P,)``.
     """
-    pts, w = cloud.points, cloud.weights
+    pts, w = _present(cloud)
     N = pts.shape[0]
-    B = int(min(block, N))
+    B = int(max(1, min(block, N)))  # N = 0 (an empty cloud) costs 0
     nb = -(-N // B)
     pad = nb * B - N
     if pad:
@@ -171,9 +178,11 @@ def free_space_cost(fmap: FreeSpaceMap, sigma, start, end, samples: int) -> jax.
     z = pts[..., 2]
     in_front_of_camera = z > 1e-3
     uv = pts[..., :2] / jnp.where(in_front_of_camera, z, 1.0)[..., None]
-    ij = jnp.floor((uv - fmap.lo) / fmap.cell).astype(jnp.int32)
+    # cell indices tested and clipped as floats: casting a far-off (or non-finite)
+    # coordinate to int32 first would overflow
+    ij = jnp.floor((uv - fmap.lo) / fmap.cell)
     inside = jnp.all((ij >= 0) & (ij < grid), -1)
-    ijc = jnp.clip(ij, 0, grid - 1)
+    ijc = jnp.clip(jnp.where(inside[..., None], ij, 0), 0, grid - 1).astype(jnp.int32)
     z_obs = fmap.depth[ijc[..., 1], ijc[..., 0]]
     gap = jnp.clip(z_obs - z, 0.0, sigma)  # in front of the observed surface
     gap = jnp.where(inside & jnp.isfinite(z_obs) & in_front_of_camera, gap, sigma)

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
+import os
 
 from ..errors import ConfigError
 from ..objective import ObjectiveConfig
 from ..search import FitConfig
 from .progress import ProgressBar, check_output_path
+
+MAX_POINTS = 1_000_000
 
 
 def register(sub) -> None:
@@ -24,6 +28,8 @@ def register(sub) -> None:
     p.add_argument("--algorithm", default="ga", help="ga (default), hc, cma_es or another evosax strategy")
     p.add_argument("--population", type=int, default=FitConfig.population)
     p.add_argument("--generations", type=int, default=FitConfig.generations)
+    p.add_argument("--islands", type=int, default=FitConfig.islands,
+                   help=f"independent populations searched side by side (default {FitConfig.islands})")
     p.add_argument("--no-refine", action="store_true", help="no gradient refinement (memetic or final)")
     p.add_argument("--free-space-weight", type=float, default=ObjectiveConfig.free_space_weight,
                    help="weight of the free-space term (0: the paper's objective alone)")
@@ -34,15 +40,39 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _finite(args, dest: str, flag: str) -> float:
+    v = getattr(args, dest)
+    if not math.isfinite(v):
+        raise ConfigError(f"{flag} must be a finite number, got {v}")
+    return v
+
+
 def config_from_args(args) -> FitConfig:
+    """The fit settings of the command line; :class:`ConfigError` names the offending option."""
     if args.max_points < 1:
         raise ConfigError(f"--max-points must be >= 1, got {args.max_points}")
-    if args.free_space_weight < 0:
+    if args.max_points > MAX_POINTS:
+        raise ConfigError(f"--max-points must be <= {MAX_POINTS}, got {args.max_points}")
+    if args.population < 2:
+        raise ConfigError(f"--population must be >= 2, got {args.population}")
+    if args.generations < 1:
+        raise ConfigError(f"--generations must be >= 1, got {args.generations}")
+    if args.islands < 1:
+        raise ConfigError(f"--islands must be >= 1, got {args.islands}")
+    if args.seed < 0 or args.seed >= 2**32:
+        raise ConfigError(f"--seed must lie in 0 .. 2**32-1, got {args.seed}")
+    if _finite(args, "free_space_weight", "--free-space-weight") < 0:
         raise ConfigError(f"--free-space-weight must be >= 0, got {args.free_space_weight}")
+    near, far = _finite(args, "near", "--near"), _finite(args, "far", "--far")
+    if not 0 <= near < far:
+        raise ConfigError(f"--near {near} / --far {far}: need 0 <= near < far (metres)")
+    if not _finite(args, "depth_scale", "--depth-scale") > 0:
+        raise ConfigError(f"--depth-scale must be > 0 (metres per PNG unit), got {args.depth_scale}")
     cfg = FitConfig(
         algorithm=args.algorithm,
         population=args.population,
         generations=args.generations,
+        islands=args.islands,
         objective=ObjectiveConfig(free_space_weight=args.free_space_weight),
     )
     if args.no_refine:
@@ -50,11 +80,35 @@ def config_from_args(args) -> FitConfig:
     return cfg.validate()
 
 
+def _same_file(a: str | None, b: str | None) -> bool:
+    if not a or not b:
+        return False
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
+def check_conflicts(args) -> None:
+    """Outputs must differ from each other and from every input."""
+    from ..io.skeleton_file import resolve_skeleton_path
+
+    if _same_file(args.out, args.plot):
+        raise ConfigError(f"--out and --plot name the same file {args.out}")
+    inputs = [("the depth image", args.depth), ("--background", args.background),
+              ("--skeleton", resolve_skeleton_path(args.skeleton)), ("--intrinsics", args.intrinsics)]
+    for flag, out in (("--out", args.out), ("--plot", args.plot)):
+        for what, path in inputs:
+            if _same_file(out, path):
+                raise ConfigError(f"{flag} {out} is also {what}; refusing to overwrite an input")
+
+
 def run(args: argparse.Namespace) -> int:
     from ..io.results import write_json
     from ..pipeline import DepthOptions, fit_depth_file
 
     config = config_from_args(args)
+    check_conflicts(args)
     check_output_path(args.out, "--out")
     if args.plot:
         check_output_path(args.plot, "--plot")

@@ -56,6 +56,17 @@ class FitConfig:
         learning_rate: Adam learning rate (genome units).
         init_root_std: spread of the initial root translation genes around the
             cloud's centre (genome units).
+        init_pca_fraction: fraction of the initial population whose root
+            orientation aligns the model's principal axes (rest pose) with the
+            cloud's, one of the four proper sign choices at random, and whose root
+            puts the model's centre behind the cloud's centre (0: all uniform).
+        init_pca_std: noise on those individuals' root genes (genome units).
+        scale_window: the global scale is searched within ``s0 / w .. s0 * w``
+            (intersected with the skeleton's range), ``s0`` being the cloud's
+            spread over the rest-pose model's (0: the skeleton's range alone).
+        islands: independent sub-populations of ``population`` individuals each,
+            searched side by side (vmapped); the fit returns the best island's
+            refined best.  The budget grows with the number of islands.
         objective: the cost's settings.
     """
 
@@ -76,6 +87,10 @@ class FitConfig:
     final_refine_steps: int = 100
     learning_rate: float = 0.01
     init_root_std: float = 0.1
+    init_pca_fraction: float = 0.5
+    init_pca_std: float = 0.02
+    scale_window: float = 1.5
+    islands: int = 4
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
 
     def validate(self) -> "FitConfig":
@@ -83,6 +98,8 @@ class FitConfig:
             raise ConfigError(f"population must be an integer >= 2, got {self.population!r}")
         if not isinstance(self.generations, int) or self.generations < 1:
             raise ConfigError(f"generations must be an integer >= 1, got {self.generations!r}")
+        if not isinstance(self.islands, int) or self.islands < 1:
+            raise ConfigError(f"islands must be an integer >= 1, got {self.islands!r}")
         if self.chunk < 1:
             raise ConfigError(f"chunk must be >= 1, got {self.chunk}")
         if self.algorithm not in ("ga", "hc"):
@@ -91,6 +108,10 @@ class FitConfig:
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ConfigError(f"{name} must lie in [0, 1], got {v}")
+        if self.scale_window != 0 and self.scale_window <= 1.0:
+            raise ConfigError(f"scale_window must be > 1 (or 0 for the skeleton's range), got {self.scale_window}")
+        if not 0.0 <= self.init_pca_fraction <= 1.0:
+            raise ConfigError(f"init_pca_fraction must lie in [0, 1], got {self.init_pca_fraction}")
         if not 0.0 < self.elite_ratio <= 1.0:
             raise ConfigError(f"elite_ratio must lie in (0, 1], got {self.elite_ratio}")
         if self.std_init <= 0 or self.std_final <= 0:
@@ -179,43 +200,106 @@ def _single_cost_fn(skel, obs, bounds, config):
     return lambda g: pop_cost(g[None])[0]
 
 
-def model_spread(skel: Skeleton) -> jax.Array:
-    """RMS distance of the rest-pose capsule axes (scale 1) from their centroid."""
+def _model_samples(skel: Skeleton) -> jax.Array:
+    """Points along the rest-pose capsule axes at scale 1 (skeleton frame)."""
     links = forward_kinematics(skel, rest_pose(skel))
     t = jnp.linspace(0.0, 1.0, 8)[:, None, None]
-    pts = (links.start[None] + t * (links.end - links.start)[None]).reshape(-1, 3)
+    return (links.start[None] + t * (links.end - links.start)[None]).reshape(-1, 3)
+
+
+def model_spread(skel: Skeleton) -> jax.Array:
+    """RMS distance of the rest-pose capsule axes (scale 1) from their centroid."""
+    pts = _model_samples(skel)
     return jnp.sqrt(jnp.mean(jnp.sum((pts - pts.mean(0)) ** 2, -1)) + 1e-12)
+
+
+def principal_axes(points: jax.Array, weights: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Weighted centroid and principal axes (columns, by decreasing variance) of points."""
+    wsum = jnp.maximum(jnp.sum(weights), 1e-12)
+    c = jnp.sum(points * weights[:, None], 0) / wsum
+    d = points - c
+    cov = (d * weights[:, None]).T @ d / wsum + 1e-9 * jnp.eye(3)
+    _, vec = jnp.linalg.eigh(cov)  # ascending eigenvalues
+    return c, vec[:, ::-1]
+
+
+def matrix_rpy(R: jax.Array) -> jax.Array:
+    """(roll, pitch, yaw) of ``R = Rz(yaw) Ry(pitch) Rx(roll)``; the inverse of ``rpy_matrix``."""
+    pitch = jnp.arcsin(jnp.clip(-R[2, 0], -1.0, 1.0))
+    return jnp.stack([jnp.arctan2(R[2, 1], R[2, 2]), pitch, jnp.arctan2(R[1, 0], R[0, 0])])
+
+
+def aligned_root(key, skel: Skeleton, obs: Observation, scale) -> tuple[jax.Array, jax.Array]:
+    """A root pose that aligns the rest-pose model's principal axes with the cloud's.
+
+    The sign of each axis is ambiguous: one of the four proper rotations is picked
+    with ``key``.  The model's centroid lands half a mean link radius behind the
+    cloud's centroid (the cloud only covers the surface facing the camera).
+    """
+    m_c, M = principal_axes(_model_samples(skel), jnp.ones(_model_samples(skel).shape[0]))
+    c_c, C = principal_axes(obs.cloud.points, obs.cloud.weights)
+    s12 = jnp.where(jax.random.bernoulli(key, 0.5, (2,)), 1.0, -1.0)
+    s3 = s12[0] * s12[1] * jnp.sign(jnp.linalg.det(C) * jnp.linalg.det(M))
+    R = (C * jnp.concatenate([s12, s3[None]])[None]) @ M.T
+    ray = c_c / jnp.maximum(jnp.linalg.norm(c_c), 1e-9)
+    centre = c_c + ray * 0.5 * scale * jnp.mean(skel.radius)
+    return centre - scale * R @ m_c, matrix_rpy(R)
+
+
+def initial_scale(skel: Skeleton, obs: Observation, config: FitConfig) -> jax.Array:
+    """The scale at which the rest-pose model spreads like the cloud."""
+    s0 = obs.sigma / config.objective.sigma_factor / model_spread(skel)
+    return jnp.clip(s0, skel.scale_lo, skel.scale_hi)
+
+
+def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig) -> Bounds:
+    """Gene ranges for this cloud: root within the cloud's extent, scale near :func:`initial_scale`."""
+    centre = cloud_centre(obs.cloud)
+    d = jnp.sqrt(jnp.sum((obs.cloud.points - centre) ** 2, -1))
+    extent = jnp.maximum(jnp.max(jnp.where(obs.cloud.weights > 0, d, 0.0)), 1e-3)
+    bounds = genome_bounds(skel, centre, extent)
+    if config.scale_window:
+        s0 = initial_scale(skel, obs, config)
+        i = genome_layout(skel).names.index("scale")
+        lo = jnp.maximum(skel.scale_lo, s0 / config.scale_window)
+        hi = jnp.maximum(jnp.minimum(skel.scale_hi, s0 * config.scale_window), lo)
+        bounds = Bounds(bounds.lo.at[i].set(lo), bounds.hi.at[i].set(hi))
+    return bounds
 
 
 def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, config: FitConfig) -> jax.Array:
     """Data-driven initial genomes: root near the cloud's centre, scale from the
     cloud's spread against the model's, orientation and joint angles uniform within
-    limits, lengths near their rest values."""
+    limits, lengths near their rest values.  A fraction ``init_pca_fraction`` gets a
+    root aligned with the cloud's principal axes instead (:func:`aligned_root`)."""
     layout = genome_layout(skel)
     P, D = config.population, layout.size
-    k_u, k_t, k_s, k_l = jax.random.split(key, 4)
+    k_u, k_t, k_s, k_l, k_a, k_n = jax.random.split(key, 6)
     g = jax.random.uniform(k_u, (P, D))
     names = layout.names
     root_t = np.array([n in ("root_tx", "root_ty", "root_tz") for n in names])
     scale_i = names.index("scale")
     is_len = np.array([n.endswith(".length") for n in names])
     g = jnp.where(root_t, 0.5 + config.init_root_std * jax.random.normal(k_t, (P, D)), g)
-    s0 = obs.sigma / config.objective.sigma_factor / model_spread(skel)
-    s0 = jnp.clip(s0, skel.scale_lo, skel.scale_hi)
-    s_span = jnp.maximum(skel.scale_hi - skel.scale_lo, 1e-9)
-    s_gene = (s0 * jnp.exp(0.15 * jax.random.normal(k_s, (P,))) - skel.scale_lo) / s_span
+    s0 = initial_scale(skel, obs, config)
+    s_lo, s_hi = bounds.lo[scale_i], bounds.hi[scale_i]
+    s_gene = (s0 * jnp.exp(0.15 * jax.random.normal(k_s, (P,))) - s_lo) / jnp.maximum(s_hi - s_lo, 1e-9)
     g = g.at[:, scale_i].set(s_gene)
     rest_g = encode(skel, bounds, rest_pose(skel))
     g = jnp.where(is_len, rest_g + 0.1 * jax.random.normal(k_l, (P, D)), g)
+    n_pca = int(round(config.init_pca_fraction * P))
+    if n_pca > 0:
+        t, rpy = jax.vmap(lambda k: aligned_root(k, skel, obs, s0))(jax.random.split(k_a, n_pca))
+        span = jnp.maximum(bounds.hi[:6] - bounds.lo[:6], 1e-9)
+        root_g = (jnp.concatenate([t, rpy], 1) - bounds.lo[:6]) / span
+        root_g = root_g + config.init_pca_std * jax.random.normal(k_n, root_g.shape)
+        g = g.at[:n_pca, :6].set(root_g)
     return jnp.clip(g, 0.0, 1.0)
 
 
-def search_init(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> SearchState:
+def _search_init1(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> SearchState:
     obs = observe(cloud, config.objective)
-    centre = cloud_centre(cloud)
-    d = jnp.sqrt(jnp.sum((cloud.points - centre) ** 2, -1))
-    extent = jnp.maximum(jnp.max(jnp.where(cloud.weights > 0, d, 0.0)), 1e-3)
-    bounds = genome_bounds(skel, centre, extent)
+    bounds = search_bounds(skel, obs, config)
     algo, params = _make_algorithm(skel, config)
     k_pop, k_init, k_run = jax.random.split(key, 3)
     pop0 = initial_population(k_pop, skel, obs, bounds, config)
@@ -246,9 +330,7 @@ def _memetic(skel, config, st: SearchState, algo_state, cost1):
     )
 
 
-def search_epoch(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
-    """Run ``length`` generations (then a memetic refinement, when on).  Returns the
-    new state and the best cost after each generation ``(length,)``."""
+def _search_epoch1(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
     algo, params = _make_algorithm(skel, config)
     pop_cost = _population_cost_fn(skel, st.obs, st.bounds, config)
 
@@ -272,7 +354,30 @@ def search_epoch(skel: Skeleton, config: FitConfig, st: SearchState, length: int
     return st._replace(algo_state=state, key=key, objective_evaluations=evals, gradient_evaluations=grads), hist
 
 
-def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchState, history) -> FitResult:
+def search_init(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> SearchState:
+    """Initial search state (with a leading island axis when ``config.islands > 1``)."""
+    if config.islands == 1:
+        return _search_init1(cloud, skel, key, config)
+    keys = jax.random.split(key, config.islands)
+    return jax.vmap(lambda k: _search_init1(cloud, skel, k, config))(keys)
+
+
+def search_epoch(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
+    """Run ``length`` generations (then a memetic refinement, when on).  Returns the
+    new state and the best cost (over all islands) after each generation ``(length,)``."""
+    if config.islands == 1:
+        return _search_epoch1(skel, config, st, length)
+    st, hist = jax.vmap(lambda s: _search_epoch1(skel, config, s, length))(st)
+    return st, jnp.min(hist, 0)
+
+
+def evaluation_counts(st: SearchState) -> tuple[jax.Array, jax.Array]:
+    """Objective and gradient evaluations so far, summed over islands."""
+    return jnp.sum(st.objective_evaluations), jnp.sum(st.gradient_evaluations)
+
+
+def _finish1(skel: Skeleton, config: FitConfig, st: SearchState):
+    """Refine one island's best candidates; returns ``(genome, cost, evaluations, gradients)``."""
     state = st.algo_state
     cost1 = _single_cost_fn(skel, st.obs, st.bounds, config)
     best_g, best_f = state.best_solution, state.best_fitness
@@ -291,7 +396,19 @@ def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
         better = f[i] < best_f
         best_g = jnp.where(better, g[i], best_g)
         best_f = jnp.where(better, f[i], best_f)
-    pose = decode(skel, st.bounds, best_g)
+    return best_g, best_f, evals, grads
+
+
+def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchState, history) -> FitResult:
+    if config.islands == 1:
+        best_g, best_f, evals, grads = _finish1(skel, config, st)
+        bounds = st.bounds
+    else:
+        g, f, e, gr = jax.vmap(lambda s: _finish1(skel, config, s))(st)
+        i = jnp.argmin(f)
+        best_g, best_f, evals, grads = g[i], f[i], jnp.sum(e), jnp.sum(gr)
+        bounds = jax.tree_util.tree_map(lambda x: x[0], st.bounds)
+    pose = decode(skel, bounds, best_g)
     links = forward_kinematics(skel, pose)
     n_dist = (evals + grads).astype(jnp.float32) * cloud.points.shape[0] * skel.num_links
     return FitResult(pose, best_g, links, best_f, history, evals, grads, n_dist, jnp.asarray(0.0, jnp.float32))
@@ -349,7 +466,7 @@ class Fitter:
             hists.append(h)
             gen += length
             if progress is not None:
-                progress(gen, float(h[-1]), int(st.objective_evaluations) + int(st.gradient_evaluations))
+                progress(gen, float(h[-1]), int(sum(evaluation_counts(st))))
         res = _finish_jit(cloud, self.skeleton, self.config, st, jnp.concatenate(hists))
         res = jax.block_until_ready(res)
         return res._replace(wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32))
