@@ -64,6 +64,10 @@ class FitConfig:
         scale_window: the global scale is searched within ``s0 / w .. s0 * w``
             (intersected with the skeleton's range), ``s0`` being the cloud's
             spread over the rest-pose model's (0: the skeleton's range alone).
+        staged: trunk before limbs: during the first ``staged`` fraction of the
+            generations the links are unlocked level by level down the tree
+            (links at depth ``d`` join after ``d / levels`` of that phase);
+            locked links hold their rest pose (0: everything searched at once).
         islands: independent sub-populations of ``population`` individuals each,
             searched side by side (vmapped); the fit returns the best island's
             refined best.  The budget grows with the number of islands.
@@ -91,6 +95,7 @@ class FitConfig:
     init_pca_std: float = 0.02
     scale_window: float = 1.5
     islands: int = 4
+    staged: float = 0.0
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
 
     def validate(self) -> "FitConfig":
@@ -110,6 +115,8 @@ class FitConfig:
                 raise ConfigError(f"{name} must lie in [0, 1], got {v}")
         if self.scale_window != 0 and self.scale_window <= 1.0:
             raise ConfigError(f"scale_window must be > 1 (or 0 for the skeleton's range), got {self.scale_window}")
+        if not 0.0 <= self.staged <= 1.0:
+            raise ConfigError(f"staged must lie in [0, 1], got {self.staged}")
         if not 0.0 <= self.init_pca_fraction <= 1.0:
             raise ConfigError(f"init_pca_fraction must lie in [0, 1], got {self.init_pca_fraction}")
         if not 0.0 < self.elite_ratio <= 1.0:
@@ -297,12 +304,38 @@ def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, co
     return jnp.clip(g, 0.0, 1.0)
 
 
+def _gene_levels(skel: Skeleton) -> np.ndarray:
+    """Tree depth of every gene's link (-1 for the root genes)."""
+    depth = np.zeros(skel.num_links, np.int32)
+    for d, level in enumerate(skel.levels):
+        depth[list(level)] = d
+    link = np.asarray(genome_layout(skel).link_of_gene)
+    return np.where(link >= 0, depth[np.maximum(link, 0)], -1)
+
+
+def _unlocked(skel: Skeleton, config: FitConfig, generation) -> jax.Array:
+    """Boolean ``(D,)``: the genes searched at ``generation`` (see ``FitConfig.staged``)."""
+    levels = _gene_levels(skel)
+    if config.staged <= 0:
+        return jnp.ones(levels.shape, bool)
+    phase = config.staged * config.generations / len(skel.levels)
+    return jnp.asarray(levels) <= jnp.floor(generation / phase)
+
+
+def _lock(skel: Skeleton, config: FitConfig, bounds: Bounds, generation, genomes):
+    """Locked genes (staged search) set to their rest values."""
+    if config.staged <= 0:
+        return genomes
+    rest = encode(skel, bounds, rest_pose(skel))
+    return jnp.where(_unlocked(skel, config, generation), genomes, rest)
+
+
 def _search_init1(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> SearchState:
     obs = observe(cloud, config.objective)
     bounds = search_bounds(skel, obs, config)
     algo, params = _make_algorithm(skel, config)
     k_pop, k_init, k_run = jax.random.split(key, 3)
-    pop0 = initial_population(k_pop, skel, obs, bounds, config)
+    pop0 = _lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config))
     fit0 = _population_cost_fn(skel, obs, bounds, config)(pop0)
     if config.algorithm == "ga":
         state = algo.init(k_init, pop0, fit0, params)
@@ -338,6 +371,7 @@ def _search_epoch1(skel: Skeleton, config: FitConfig, st: SearchState, length: i
         state, key = carry
         key, k_ask, k_tell = jax.random.split(key, 3)
         pop, state = algo.ask(k_ask, state, params)
+        pop = _lock(skel, config, st.bounds, state.generation_counter, pop)
         fitness = pop_cost(pop)
         state, _ = algo.tell(k_tell, pop, fitness, state, params)
         return (state, key), state.best_fitness
@@ -346,7 +380,11 @@ def _search_epoch1(skel: Skeleton, config: FitConfig, st: SearchState, length: i
     evals = st.objective_evaluations + length * config.population
     grads = st.gradient_evaluations
     if config.memetic_on:
-        state = _memetic(skel, config, st, state, _single_cost_fn(skel, st.obs, st.bounds, config))
+        cost1 = _single_cost_fn(skel, st.obs, st.bounds, config)
+        gen = state.generation_counter
+        state = _memetic(skel, config, st, state, lambda g: cost1(_lock(skel, config, st.bounds, gen, g)))
+        state = state.replace(population=_lock(skel, config, st.bounds, gen, state.population),
+                              best_solution=_lock(skel, config, st.bounds, gen, state.best_solution))
         m = min(config.memetic_top, config.population)
         evals = evals + m
         grads = grads + m * config.memetic_steps
