@@ -28,11 +28,21 @@ KINECT_V1 = Intrinsics(525.0, 525.0, 319.5, 239.5, 640, 480)
 
 def check_intrinsics(k: Intrinsics, shape=None, source: str = "intrinsics") -> Intrinsics:
     """Validate intrinsics (optionally against an image ``shape``); raise :class:`IntrinsicsError`."""
-    vals = [k.fx, k.fy, k.cx, k.cy]
+    try:
+        vals = [float(v) for v in (k.fx, k.fy, k.cx, k.cy)]
+    except (TypeError, ValueError):
+        raise IntrinsicsError(f"{source}: fx, fy, cx, cy must be numbers, got {list(k[:4])}") from None
     if not all(np.isfinite(v) for v in vals):
         raise IntrinsicsError(f"{source}: values must be finite numbers, got {list(k[:4])}")
     if k.fx <= 0 or k.fy <= 0:
         raise IntrinsicsError(f"{source}: focal lengths must be positive, got fx={k.fx}, fy={k.fy}")
+    if shape is None:
+        try:
+            ok = int(k.width) == k.width and int(k.height) == k.height and k.width >= 1 and k.height >= 1
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+        if not ok:
+            raise IntrinsicsError(f"{source}: width and height must be positive integers, got {k.width}x{k.height}")
     h, w = (k.height, k.width) if shape is None else shape[:2]
     if not (0 <= k.cx <= w and 0 <= k.cy <= h):
         raise IntrinsicsError(
@@ -107,17 +117,19 @@ def depth_to_cloud(
     :class:`DepthError` when fewer than ``min_points`` points remain.
     """
     depth = np.asarray(depth)
+    if depth.dtype.kind not in "fiu":
+        raise DepthError(f"{source}: depth must be a numeric array (metres), got dtype {depth.dtype}")
     if depth.ndim != 2:
         raise DepthError(f"{source}: expected a single-channel depth image, got shape {depth.shape}")
     if background is not None:
         background = np.asarray(background)
+        if background.dtype.kind not in "fiu":
+            raise DepthError(f"{source}: background must be a numeric array (metres), got dtype {background.dtype}")
         if background.shape != depth.shape:
-            raise DepthError(
-                f"{source}: background image is {background.shape[1]}x{background.shape[0]}, "
-                f"the depth image is {depth.shape[1]}x{depth.shape[0]}"
-            )
+            size = lambda a: f"{a.shape[1]}x{a.shape[0]}" if a.ndim == 2 else f"of shape {a.shape}"  # noqa: E731
+            raise DepthError(f"{source}: background image is {size(background)}, the depth image is {size(depth)}")
     check_intrinsics(intrinsics, depth.shape)
-    if not (0 <= near < far):
+    if not (np.isfinite(near) and np.isfinite(far) and 0 <= near < far):
         raise DepthError(f"{source}: near/far range must satisfy 0 <= near < far, got near={near}, far={far}")
     if max_points < 1:
         raise DepthError(f"{source}: max_points must be >= 1, got {max_points}")
@@ -125,6 +137,13 @@ def depth_to_cloud(
     n_valid = int(valid.sum())
     if n_valid == 0:
         raise DepthError(f"{source}: the image holds no depth measurement (every pixel is 0, NaN or inf)")
+    zv = depth.reshape(-1)[valid]
+    if not np.any((zv >= near) & (zv <= far)):
+        raise DepthError(
+            f"{source}: no depth measurement lies within near={near} m .. far={far} m "
+            f"(the measured depths span {float(zv.min()):.4g} .. {float(zv.max()):.4g} m; "
+            "check the near/far range and the depth scale)"
+        )
     mask = foreground_mask(depth, near, far, background, background_tolerance).reshape(-1)
     idx = np.flatnonzero(mask)
     if len(idx) < min_points:

@@ -1,7 +1,11 @@
 """The ``jaxpose`` command: argument parsing and error reporting only.
 
 Every subcommand lives in :mod:`jaxpose.commands` and registers itself.  Bad
-input ends with one line ``jaxpose: error: <message>`` and exit status 2.
+input (a documented :class:`~jaxpose.errors.JaxposeError`, or arguments the
+parser rejects) ends with one line ``jaxpose: error: <message>`` on stderr and
+exit status 2; an operating-system error while reading or writing a file ends
+with one such line and status 1; Ctrl-C with one line and status 130.  The
+messages are listed in docs/errors.md.
 """
 
 from __future__ import annotations
@@ -16,8 +20,18 @@ from .errors import JaxposeError
 SUBCOMMANDS = ("fit", "render", "eval", "skeleton")
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line: ``jaxpose: error: <message> (see ... --help)``."""
+
+    def error(self, message):  # noqa: D401 - argparse API
+        if message.endswith("expected one argument"):
+            flag = message.split(":")[0].replace("argument ", "").split("/")[-1].strip()
+            message += f" (write {flag}=VALUE when the value starts with '-')"
+        self.exit(2, f"jaxpose: error: {message} (see '{self.prog} --help')\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="jaxpose",
         description="Pose of an arbitrary kinematic skeleton from a single depth image (evolutionary search in JAX).",
     )
@@ -29,19 +43,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run the command line with ``argv`` (default ``sys.argv[1:]``); return the exit status."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:  # --help, --version, or a parser error already printed
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
     if not getattr(args, "func", None):
         parser.print_help()
+        print(f"jaxpose: error: no command given (one of {', '.join(SUBCOMMANDS)})", file=sys.stderr)
         return 2
     try:
         return int(args.func(args) or 0)
     except JaxposeError as e:
-        print(f"jaxpose: error: {e}", file=sys.stderr)
+        print(f"jaxpose: error: {_one_line(e)}", file=sys.stderr)
         return 2
+    except OSError as e:  # e.g. a disk that fills up while writing
+        where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+        print(f"jaxpose: error: {where}{e.strerror or _one_line(e)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
-        print("jaxpose: interrupted; no output was written", file=sys.stderr)
+        print("jaxpose: interrupted (no partially written output file is left behind)", file=sys.stderr)
         return 130
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split()) or e.__class__.__name__
 
 
 if __name__ == "__main__":

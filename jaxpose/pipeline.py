@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Intrinsics, depth_to_cloud
+from .errors import ConfigError, DepthError
 from .io.depth_file import load_depth, parse_intrinsics
 from .io.fit_result import file_sha256, result_document
 from .io.skeleton_file import load_skeleton, resolve_skeleton_path
@@ -28,6 +29,30 @@ class DepthOptions:
     max_points: int = 1024
     sample_seed: int = 0
 
+    def validate(self) -> "DepthOptions":
+        """Raise :class:`ConfigError` for an impossible setting; return ``self``."""
+        def num(name, v):
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
+                raise ConfigError(f"{name} must be a finite number, got {v!r}")
+            return float(v)
+
+        near, far = num("near", self.near), num("far", self.far)
+        if not 0 <= near < far:
+            raise ConfigError(f"near/far: need 0 <= near < far (metres), got near={near}, far={far}")
+        if not num("depth_scale", self.depth_scale) > 0:
+            raise ConfigError(f"depth_scale must be > 0 (metres per stored unit), got {self.depth_scale}")
+        if num("background_tolerance", self.background_tolerance) < 0:
+            raise ConfigError(f"background_tolerance must be >= 0 metres, got {self.background_tolerance}")
+        for name in ("max_points", "sample_seed"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise ConfigError(f"{name} must be an integer, got {v!r}")
+        if self.max_points < 1:
+            raise ConfigError(f"max_points must be >= 1, got {self.max_points}")
+        if self.sample_seed < 0:
+            raise ConfigError(f"sample_seed must be >= 0, got {self.sample_seed}")
+        return self
+
 
 @dataclass
 class FitOutput:
@@ -40,9 +65,20 @@ class FitOutput:
 
 def load_observation(depth_path: str, options: DepthOptions = DepthOptions()):
     """Read and validate a depth file (and background); return ``(depth, intrinsics, cloud)``."""
+    options.validate()
     depth = load_depth(depth_path, options.depth_scale)
-    k = parse_intrinsics(options.intrinsics, depth.shape)
-    background = load_depth(options.background, options.depth_scale) if options.background else None
+    k = parse_intrinsics(options.intrinsics, depth.shape, image=str(depth_path))
+    background = None
+    if options.background:
+        try:
+            background = load_depth(options.background, options.depth_scale)
+        except DepthError as e:
+            raise DepthError(f"background image {e}") from None
+        if background.shape != depth.shape:
+            (bh, bw), (h, w) = background.shape, depth.shape
+            raise DepthError(
+                f"background image {options.background}: is {bw}x{bh}, but the depth image {depth_path} is {w}x{h}"
+            )
     cloud = depth_to_cloud(
         depth, k, options.near, options.far, background, options.max_points, options.sample_seed,
         background_tolerance=options.background_tolerance, source=depth_path,
@@ -60,6 +96,7 @@ def fit_depth_file(
 ) -> FitOutput:
     """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth file."""
     config.validate()
+    options.validate()
     skel_file = None
     if isinstance(skeleton, Skeleton):
         skel = skeleton

@@ -118,8 +118,10 @@ def run(args: argparse.Namespace) -> int:
     options = DepthOptions(args.intrinsics, args.depth_scale, args.near, args.far, args.background,
                            max_points=args.max_points)
     bar = ProgressBar(config.generations, quiet=args.quiet)
-    out = fit_depth_file(args.depth, args.skeleton, config, args.seed, options, progress=bar.update)
-    bar.close()
+    try:
+        out = fit_depth_file(args.depth, args.skeleton, config, args.seed, options, progress=bar.update)
+    finally:
+        bar.close()  # end the progress line, also before an error message or Ctrl-C
     write_json(args.out, out.document)
     msg = (f"{out.skeleton.name}: cost {out.document['cost']:.5f}, "
            f"{out.document['evaluations']['objective']} evaluations, "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+import tempfile
 import time
 
 from ..errors import ConfigError
@@ -43,11 +44,21 @@ class ProgressBar:
 
 
 def check_output_path(path: str, what: str) -> None:
-    """Fail early (before any work) when an output cannot be written."""
+    """Fail early (before any work) when an output cannot be written.
+
+    Besides the permission bits, a temporary file is created and removed in the
+    folder, which also catches read-only file systems (and works for root).
+    """
     d = os.path.dirname(os.path.abspath(path)) or "."
+    shown = os.path.dirname(path) or "."
     if not os.path.isdir(d):
-        raise ConfigError(f"{what} {path}: directory {os.path.dirname(path) or '.'} does not exist")
-    if not os.access(d, os.W_OK):
-        raise ConfigError(f"{what} {path}: directory {os.path.dirname(path) or '.'} is not writable")
+        raise ConfigError(f"{what} {path}: directory {shown} does not exist")
     if os.path.isdir(path):
         raise ConfigError(f"{what} {path}: is a directory")
+    if not os.access(d, os.W_OK):
+        raise ConfigError(f"{what} {path}: directory {shown} is not writable")
+    try:
+        with tempfile.TemporaryFile(dir=d, prefix=".jaxpose-probe-"):
+            pass
+    except OSError as e:
+        raise ConfigError(f"{what} {path}: directory {shown} is not writable ({e.strerror or e})") from None

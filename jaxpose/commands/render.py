@@ -60,8 +60,21 @@ def run(args) -> int:
     from ..io.truth import read_pose, write_view
     from ..skeleton import rest_pose
 
+    from .progress import check_output_path
+
+    if not 0 <= args.seed < 2**32:
+        raise ConfigError(f"--seed must lie in 0 .. 2**32-1, got {args.seed}")
+    outputs = [(flag, p) for flag, p in (("--out", args.out), ("--truth", args.truth),
+                                         ("--background-out", args.background_out)) if p]
+    for i, (flag, p) in enumerate(outputs):
+        for flag2, p2 in outputs[i + 1:]:
+            if os.path.abspath(p) == os.path.abspath(p2):
+                raise ConfigError(f"{flag} and {flag2} name the same file {p}")
     skel = load_skeleton(args.skeleton)
     k = parse_intrinsics(args.intrinsics)
+    if not args.size and not (8 <= k.width <= 4096 and 8 <= k.height <= 4096):
+        raise ConfigError(f"--intrinsics {args.intrinsics}: image size {k.width}x{k.height} must lie in 8..4096 "
+                          "(or pass --size)")
     if args.size:
         w, h = _size(args.size)
         sx, sy = w / k.width, h / k.height
@@ -77,9 +90,8 @@ def run(args) -> int:
         raise ConfigError(f"--azimuth {args.azimuth}: must be a number of degrees")
     if args.background_out and not (args.floor or args.clutter):
         raise ConfigError("--background-out needs a background: add --floor and/or --clutter")
-    for p in (args.out, args.truth, args.background_out):
-        if p and not os.path.isdir(os.path.dirname(os.path.abspath(p))):
-            raise ConfigError(f"{p}: folder {os.path.dirname(p) or '.'} does not exist")
+    for flag, p in outputs:
+        check_output_path(p, flag)
 
     if args.pose == "random":
         pose = R.random_pose(skel, args.seed)

@@ -23,6 +23,7 @@ Schema (TOML shown; JSON uses the same keys)::
 from __future__ import annotations
 
 import json
+import math
 import os
 import tomllib
 
@@ -30,6 +31,8 @@ from ..errors import SkeletonError
 from ..skeleton import LinkSpec, Skeleton, build_skeleton
 
 MAX_SKELETON_BYTES = 16 * 1024 * 1024
+MAX_LINKS = 4096
+_TOP_KEYS = {"name", "description", "scale_range", "link", "links"}
 _LINK_KEYS = {
     "name", "parent", "joint", "offset", "attach", "rest", "axis", "limits", "length", "length_range", "radius",
 }
@@ -59,11 +62,17 @@ def load_skeleton(path: str) -> Skeleton:
     A bare name such as ``"spider"`` loads the shipped skeleton of that name.
     Raises :class:`~jaxpose.errors.SkeletonError` naming the file and the problem.
     """
-    path = resolve_skeleton_path(str(path))
+    given = str(path)
+    path = resolve_skeleton_path(given)
     if not os.path.exists(path):
+        if os.sep not in given and "." not in given:
+            names = ", ".join(shipped_skeletons())
+            raise SkeletonError(f"{given}: no such skeleton file, and not a shipped skeleton ({names})")
         raise SkeletonError(f"{path}: skeleton file not found")
     if os.path.isdir(path):
         raise SkeletonError(f"{path}: is a directory, not a skeleton file")
+    if not os.path.isfile(path):
+        raise SkeletonError(f"{path}: not a regular file")
     size = os.path.getsize(path)
     if size > MAX_SKELETON_BYTES:
         raise SkeletonError(f"{path}: file is {size} bytes, more than the {MAX_SKELETON_BYTES} allowed for a skeleton")
@@ -78,49 +87,95 @@ def load_skeleton(path: str) -> Skeleton:
         return load_mjcf(path)
     try:
         with open(path, "rb") as f:
-            raw = f.read()
+            raw = f.read(MAX_SKELETON_BYTES + 1)
+    except OSError as e:
+        raise SkeletonError(f"{path}: cannot read skeleton file ({e.strerror or e})") from None
+    try:
         text = raw.decode("utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise SkeletonError(f"{path}: cannot read skeleton file ({e.__class__.__name__}: {e})") from None
+    except UnicodeDecodeError as e:
+        raise SkeletonError(f"{path}: not a UTF-8 text file (byte {raw[e.start]:#04x} at offset {e.start})") from None
+    if len(raw) > MAX_SKELETON_BYTES:
+        raise SkeletonError(f"{path}: more than the {MAX_SKELETON_BYTES} bytes allowed for a skeleton")
     if not text.strip():
         raise SkeletonError(f"{path}: the skeleton file is empty")
+    kind = "JSON" if ext == ".json" else "TOML"
     try:
         data = json.loads(text) if ext == ".json" else tomllib.loads(text)
-    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as e:
-        kind = "JSON" if ext == ".json" else "TOML"
-        raise SkeletonError(f"{path}: not valid {kind}: {e}") from None
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and TOMLDecodeError are ValueErrors
+        reason = "nested too deeply" if isinstance(e, RecursionError) else " ".join(str(e).split())
+        raise SkeletonError(f"{path}: not valid {kind}: {reason}") from None
     default_name = os.path.splitext(os.path.basename(path))[0]
     return skeleton_from_dict(data, source=path, default_name=default_name)
 
 
+def _key(k) -> str:
+    """A key as written, quoted when it is empty or not plain printable text."""
+    return k if isinstance(k, str) and k and k.isprintable() and k.strip() == k else repr(k)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _check_numbers(value, where: str, depth: int = 0) -> None:
+    """Reject integers too large for a float and absurdly nested values (JSON allows both)."""
+    if depth > 8:
+        raise SkeletonError(f"{where}: values are nested too deeply")
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 2**63:
+        raise SkeletonError(f"{where}: number {str(value)[:20]}... is too large")
+    if isinstance(value, list):
+        for v in value:
+            _check_numbers(v, where, depth + 1)
+    elif isinstance(value, dict):
+        for v in value.values():
+            _check_numbers(v, where, depth + 1)
+
+
 def skeleton_from_dict(data, source: str = "<skeleton>", default_name: str = "skeleton") -> Skeleton:
-    """Build a skeleton from the parsed native schema (see the module docstring)."""
+    """Build a skeleton from the parsed native schema (see the module docstring).
+
+    Raises :class:`~jaxpose.errors.SkeletonError` naming ``source``, the link and the problem.
+    """
     if not isinstance(data, dict):
         raise SkeletonError(f"{source}: expected a table/object at the top level")
+    unknown = [_key(k) for k in data if k not in _TOP_KEYS]
+    if unknown:
+        raise SkeletonError(
+            f"{source}: unknown top-level key(s) {', '.join(sorted(unknown))} (expected name, scale_range, [[link]])"
+        )
     links = data.get("link", data.get("links"))
     if links is None or links == []:
         raise SkeletonError(f"{source}: the skeleton has no links (expected [[link]] entries)")
     if not isinstance(links, list):
         raise SkeletonError(f"{source}: 'link' must be a list of tables")
+    if len(links) > MAX_LINKS:
+        raise SkeletonError(f"{source}: {len(links)} links, more than the {MAX_LINKS} supported")
+    name = data.get("name", default_name)
+    if not isinstance(name, str) or not name.strip():
+        raise SkeletonError(f"{source}: 'name' must be a non-empty string, got {name!r:.40}")
     specs = []
     for k, item in enumerate(links):
         if not isinstance(item, dict):
             raise SkeletonError(f"{source}: link #{k + 1} is not a table")
-        name = item.get("name")
-        if not isinstance(name, str) or not name:
+        lname = item.get("name")
+        if not isinstance(lname, str) or not lname:
             raise SkeletonError(f"{source}: link #{k + 1} needs a non-empty string 'name'")
-        unknown = set(item) - _LINK_KEYS
+        unknown = [_key(key) for key in item if key not in _LINK_KEYS]
         if unknown:
-            raise SkeletonError(f"{source}: link {name!r}: unknown key(s) {', '.join(sorted(unknown))}")
+            raise SkeletonError(f"{source}: link {lname!r}: unknown key(s) {', '.join(sorted(unknown))}")
+        _check_numbers(item, f"{source}: link {lname!r}")
         parent = item.get("parent")
         if parent is not None and not isinstance(parent, str):
-            raise SkeletonError(f"{source}: link {name!r}: 'parent' must be a link name")
+            raise SkeletonError(f"{source}: link {lname!r}: 'parent' must be a link name")
         kw = {key: item[key] for key in item if key not in ("name", "parent")}
         if "joint" in kw and not isinstance(kw["joint"], str):
-            raise SkeletonError(f"{source}: link {name!r}: 'joint' must be a string")
-        specs.append(LinkSpec(name=name, parent=parent or None, **kw))
+            raise SkeletonError(f"{source}: link {lname!r}: 'joint' must be a string")
+        if "attach" in kw and not (_is_number(kw["attach"]) and math.isfinite(kw["attach"])):
+            raise SkeletonError(f"{source}: link {lname!r}: 'attach' must be a finite number, got {kw['attach']!r:.40}")
+        specs.append(LinkSpec(name=lname, parent=parent or None, **kw))
     scale_range = data.get("scale_range", (0.5, 2.0))
-    return build_skeleton(str(data.get("name", default_name)), specs, scale_range=scale_range, source=source)
+    _check_numbers(scale_range, f"{source}: scale_range")
+    return build_skeleton(name, specs, scale_range=scale_range, source=source)
 
 
 def shipped_skeletons() -> list[str]:

@@ -1,0 +1,177 @@
+"""The ``jaxpose`` command end to end: render a small synthetic image, fit it, score it.
+
+Fits are tiny (one island of 32 individuals, 10 generations, no gradient refinement, no
+free-space term) and share one configuration, so that JAX compiles each
+algorithm once per test session; compilation dominates their run time.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from jaxpose.cli import main
+from jaxpose.io.depth_file import load_depth
+from jaxpose.io.skeleton_file import load_skeleton
+
+FIT = ["--skeleton", "spider", "--population", "32", "--generations", "10", "--islands", "1", "--quiet",
+       "--no-refine", "--free-space-weight", "0", "--max-points", "256"]
+
+
+def _sha256(path) -> str:
+    return hashlib.sha256(open(path, "rb").read()).hexdigest()
+
+
+def _run(capsys, *argv):
+    rc = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    assert rc == 0, err
+    return out, err
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """A 160x120 depth PNG of the spider in a random pose, its truth file and its intrinsics."""
+    d = tmp_path_factory.mktemp("cli")
+    rc = main(["render", "--skeleton", "spider", "--size", "160x120", "--seed", "3",
+               "--out", str(d / "depth.png"), "--truth", str(d / "truth.json")])
+    assert rc == 0
+    return d
+
+
+@pytest.fixture(scope="module")
+def ga_result(scene):
+    out = scene / "result.json"
+    rc = main(["fit", str(scene / "depth.png"), "--intrinsics", str(scene / "truth.json"), "--seed", "7",
+               "--out", str(out)] + FIT)
+    assert rc == 0
+    return json.loads(out.read_text())
+
+
+def test_render_wrote_a_16_bit_depth_image_and_truth(scene):
+    depth = load_depth(scene / "depth.png")
+    assert depth.shape == (120, 160) and np.isfinite(depth).sum() >= 50
+    truth = json.loads((scene / "truth.json").read_text())
+    assert truth["camera"]["intrinsics"]["width"] == 160 and len(truth["links"]) == 8
+
+
+def test_result_json_schema(ga_result, scene):
+    doc = ga_result
+    skel = load_skeleton("spider")
+    assert doc["schema"] == 1 and doc["algorithm"] == "ga" and doc["seed"] == 7
+    assert "camera" in doc["frame"]
+    # skeleton: name, file and its hash
+    assert doc["skeleton"]["name"] == "spider" and doc["skeleton"]["num_links"] == 8
+    assert doc["skeleton"]["dof"] == skel.num_dof == len(doc["genome"])
+    assert doc["skeleton"]["sha256"] == _sha256(doc["skeleton"]["file"])
+    # input: hashes and the settings that made the cloud
+    inp = doc["input"]
+    assert inp["depth"] == "depth.png" and inp["depth_sha256"] == _sha256(scene / "depth.png")
+    assert inp["background"] is None and inp["background_sha256"] is None
+    truth = json.loads((scene / "truth.json").read_text())
+    assert inp["intrinsics"] == truth["camera"]["intrinsics"]
+    assert inp["max_points"] == 256 and 50 <= inp["points_used"] <= 256
+    # links by name, with parents, in the camera frame
+    names = [link["name"] for link in doc["links"]]
+    assert names == list(skel.link_names)
+    by_name = {link["name"]: link for link in doc["links"]}
+    for i, link in enumerate(doc["links"]):
+        p = skel.parents[i]
+        assert link["parent"] == (skel.link_names[p] if p >= 0 else None)
+        assert len(link["start"]) == len(link["end"]) == len(link["origin"]) == 3
+        assert all(math.isfinite(v) for v in link["start"] + link["end"]) and link["radius"] > 0
+        if link["parent"]:  # a child starts where its parent ends
+            assert np.allclose(link["start"], by_name[link["parent"]]["end"], atol=1e-4)
+    fitted = np.mean([link["start"] + link["end"] for link in doc["links"]], 0).reshape(2, 3).mean(0)
+    true = np.mean([link["start"] + link["end"] for link in truth["links"]], 0).reshape(2, 3).mean(0)
+    assert true[2] > 0.5 and np.linalg.norm(fitted - true) < 1.0  # camera frame: in front of the camera
+    # params in physical units
+    params = doc["params"]
+    assert len(params["root_translation"]) == 3 and len(params["root_rpy"]) == 3 and params["scale"] > 0
+    assert set(params["joints"]) == set(names) and all(len(v) == 3 for v in params["joints"].values())
+    assert set(params["lengths"]) == set(names)
+    # cost, its history, evaluation counts, config, versions, timing
+    assert math.isfinite(doc["cost"]) and doc["cost"] >= 0
+    assert len(doc["cost_history"]) == 10 and doc["cost"] <= doc["cost_history"][0] + 1e-9
+    assert doc["evaluations"]["objective"] >= 32 * 11 and doc["evaluations"]["gradient"] == 0
+    assert doc["evaluations"]["point_to_capsule_distances"] > 0
+    cfg = doc["config"]
+    assert (cfg["algorithm"], cfg["population"], cfg["generations"]) == ("ga", 32, 10)
+    assert cfg["memetic_every"] == 0 and cfg["final_refine_steps"] == 0 and cfg["islands"] == 1
+    assert cfg["objective"]["free_space_weight"] == 0
+    assert doc["versions"]["jaxpose"] and doc["versions"]["jax"] and doc["versions"]["numpy"]
+    assert doc["timing"]["wall_seconds"] > 0
+
+
+def test_same_seed_gives_identical_numbers(ga_result, scene, capsys):
+    """A second run (with an overlay plot) repeats every number but the timing."""
+    pytest.importorskip("matplotlib")
+    out = scene / "again.json"
+    plot = scene / "overlay.png"
+    stdout, _ = _run(capsys, "fit", scene / "depth.png", "--intrinsics", scene / "truth.json", "--seed", "7",
+                     "--out", out, "--plot", plot, *FIT)
+    again = json.loads(out.read_text())
+    assert stdout == ""  # --quiet
+    first = {k: v for k, v in ga_result.items() if k != "timing"}
+    assert {k: v for k, v in again.items() if k != "timing"} == first
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not [f for f in os.listdir(scene) if f.startswith(".tmp-")]
+
+
+@pytest.mark.parametrize("algorithm", ["hc", "cma_es"])
+def test_other_algorithms_run_through_the_same_command(algorithm, scene, capsys):
+    out = scene / f"{algorithm}.json"
+    stdout, _ = _run(capsys, "fit", scene / "depth.png", "--intrinsics", scene / "truth.json",
+                     "--algorithm", algorithm, "--out", out, *[a for a in FIT if a != "--quiet"])
+    doc = json.loads(out.read_text())
+    assert doc["algorithm"] == doc["config"]["algorithm"] == algorithm
+    assert math.isfinite(doc["cost"]) and len(doc["links"]) == 8 and len(doc["cost_history"]) == 10
+    assert stdout.startswith("spider: cost ") and str(out) in stdout
+
+
+def test_eval_result_against_truth_as_json(ga_result, scene, capsys):
+    stdout, err = _run(capsys, "eval", scene / "result.json", scene / "truth.json", "--json")
+    m = json.loads(stdout)
+    assert err == "" and m["skeleton"] == "spider" and m["num_links"] == 8
+    for kind in ("strict", "symmetric"):
+        assert set(m[kind]) >= {"pcp", "pcp_10cm", "pck_10cm", "mpjpe_mm"}
+        assert 0 <= m[kind]["pcp"] <= 1 and m[kind]["mpjpe_mm"] >= 0
+    assert m["symmetric"]["mpjpe_mm"] <= m["strict"]["mpjpe_mm"] + 1e-9
+    assert set(m["per_link"]) == {link["name"] for link in ga_result["links"]}
+    # the truth against itself is perfect
+    stdout, _ = _run(capsys, "eval", scene / "truth.json", scene / "truth.json", "--json")
+    assert json.loads(stdout)["strict"]["pcp"] == 1.0
+
+
+def test_skeleton_command(capsys):
+    stdout, _ = _run(capsys, "skeleton", "spider", "--genome")
+    lines = stdout.splitlines()
+    skel = load_skeleton("spider")
+    assert lines[0] == f"spider: 8 links, {skel.num_dof} DOF (genome size)"
+    assert sum(line.split()[0] in skel.link_names for line in lines[1:9]) == 8
+    assert sum("gene" in line and ":" in line for line in lines[9:]) == skel.num_dof
+
+
+def test_help_lists_the_commands(capsys):
+    rc = main(["--help"])
+    out, _ = capsys.readouterr()
+    assert rc == 0
+    for command in ("fit", "render", "eval", "skeleton"):
+        assert f"    {command}" in out
+
+
+def test_installed_command_reports_one_line_and_status_2(tmp_path):
+    """The console script in a fresh process: no traceback, no stray warnings on stderr."""
+    exe = os.path.join(os.path.dirname(sys.executable), "jaxpose")
+    argv = [exe] if os.path.exists(exe) else [sys.executable, "-m", "jaxpose.cli"]
+    p = subprocess.run(argv + ["fit", "missing.png", "--skeleton", "spider"], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and p.stdout == ""
+    assert p.stderr == "jaxpose: error: missing.png: depth file not found\n"
