@@ -105,6 +105,11 @@ def fit_depth_file(
         skel = load_skeleton(skel_file)
     depth, k, cloud = load_observation(depth_path, options)
     result = fit_cloud(cloud, skel, seed, config, progress)
+    if not (np.isfinite(float(result.cost)) and np.all(np.isfinite(np.asarray(result.links.end)))):
+        raise ConfigError(
+            f"{depth_path}: the fit of {skel.name!r} ended with a non-finite cost or pose; "
+            "check the skeleton's ranges and the depth scale"
+        )
     inputs = {
         "depth": os.path.basename(depth_path),
         "depth_sha256": file_sha256(depth_path),
