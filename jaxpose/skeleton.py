@@ -353,7 +353,14 @@ def build_skeleton(
     while pending:
         ready = [l for l in pending if l.parent is None or l.parent in placed]
         if not ready:
-            fail("the parent links form a cycle", pending[0].name)
+            # name a link on the cycle (pending[0] may merely hang below one)
+            parent_of = {l.name: l.parent for l in pending}
+            walk, name = [], pending[0].name
+            while name not in walk:
+                walk.append(name)
+                name = parent_of[name]
+            cycle = walk[walk.index(name):]
+            fail(f"the parent links form a cycle ({' -> '.join(cycle + [name])})", name)
         for l in ready:
             order.append(l)
             placed.add(l.name)
@@ -378,10 +385,15 @@ def build_skeleton(
     lhi = np.zeros(L)
     radius = np.zeros(L)
     for i, l in enumerate(order):
-        if l.joint not in JOINT_DOF:
+        if not isinstance(l.joint, str) or l.joint not in JOINT_DOF:
             fail(f"unknown joint type {l.joint!r} (expected one of {', '.join(JOINT_DOF)})", l.name)
         offset[i] = _vec3(l.offset, "offset", l.name, fail)
-        attach[i] = float(l.attach if l.attach is not None else (1.0 if l.parent is not None else 0.0))
+        try:
+            attach[i] = float(l.attach if l.attach is not None else (1.0 if l.parent is not None else 0.0))
+        except (TypeError, ValueError):
+            fail(f"'attach' must be a number, got {l.attach!r}", l.name)
+        if not np.isfinite(attach[i]):
+            fail(f"'attach' must be a finite number, got {l.attach!r}", l.name)
         if l.rest_matrix is not None:
             rest[i] = np.asarray(l.rest_matrix, float).reshape(3, 3)
         else:
