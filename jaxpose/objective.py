@@ -174,8 +174,13 @@ def free_space_map(cloud: Cloud, grid: int = 40) -> FreeSpaceMap:
     return FreeSpaceMap(depth, lo, cell)
 
 
-def free_space_cost(fmap: FreeSpaceMap, sigma, start, end, samples: int) -> jax.Array:
-    """Mean free-space penalty of capsule-axis samples, ``start, end (P, L, 3)`` -> ``(P,)``."""
+def free_space_cost(fmap: FreeSpaceMap, sigma, start, end, samples: int, radius=None) -> jax.Array:
+    """Mean free-space penalty of capsule-axis samples, ``start, end (P, L, 3)`` -> ``(P,)``.
+
+    A sample's depth is that of the capsule's front surface, ``z - radius``
+    (``radius`` ``(L,)`` or ``(P, L)``; omitted: 0), so that a fat capsule cannot hide
+    its axis behind the observed surface while its front bulges out of it.
+    """
     grid = fmap.depth.shape[0]
     t = (jnp.arange(samples, dtype=start.dtype) + 0.5) / samples
     pts = start[..., None, :] + t[:, None] * (end - start)[..., None, :]  # (P, L, S, 3)
@@ -188,7 +193,8 @@ def free_space_cost(fmap: FreeSpaceMap, sigma, start, end, samples: int) -> jax.
     inside = jnp.all((ij >= 0) & (ij < grid), -1)
     ijc = jnp.clip(jnp.where(inside[..., None], ij, 0), 0, grid - 1).astype(jnp.int32)
     z_obs = fmap.depth[ijc[..., 1], ijc[..., 0]]
-    gap = jnp.clip(z_obs - z, 0.0, sigma)  # in front of the observed surface
+    front = z if radius is None else z - jnp.broadcast_to(radius, start.shape[:-1])[..., None]
+    gap = jnp.clip(z_obs - front, 0.0, sigma)  # in front of the observed surface
     gap = jnp.where(inside & jnp.isfinite(z_obs) & in_front_of_camera, gap, sigma)
     pen = jnp.log1p(gap / sigma)
     return jnp.mean(pen.reshape(pen.shape[0], -1), -1)
@@ -216,7 +222,7 @@ def population_cost(obs: Observation, start, end, radius, config: ObjectiveConfi
     cost = data_cost(obs.cloud, obs.sigma, start, end, radius, config.block)
     if config.free_space_weight > 0:
         cost = cost + config.free_space_weight * free_space_cost(
-            obs.fmap, obs.sigma, start, end, config.free_space_samples
+            obs.fmap, obs.sigma, start, end, config.free_space_samples, radius
         )
     return cost
 
