@@ -412,9 +412,6 @@ def test_config_errors(bad):
         jax.jit(fit, static_argnames="config")(spider_cloud(), skeleton(), jax.random.key(0), config)
 
 
-@pytest.mark.xfail(strict=True, reason="BUG: population-based evosax strategies (PSO, SimpleGA, "
-                   "DifferentialEvolution, ...) pass FitConfig.validate but fit calls algo.init(key, mean, params) "
-                   "-> TypeError: PSO.init() missing 1 required positional argument: 'params'")
 def test_population_based_evosax_strategy_runs_or_is_refused():
     config = dataclasses.replace(CMA, algorithm="pso", population=8, generations=2, chunk=2)
     try:
@@ -470,9 +467,7 @@ def test_best_pose_respects_the_search_bounds(config):
 
 @pytest.mark.parametrize("config", [
     GA, GA_PLAIN, HC, ISLANDS,
-    pytest.param(CMA, marks=pytest.mark.xfail(strict=True, reason=(
-        "BUG: evosax strategies other than ga/hc sample unclipped genomes; FitResult.genome of cma_es lies "
-        "outside the documented [0, 1]^D box (e.g. -0.2 .. 1.2); decode clips so the pose is fine"))),
+    CMA,
 ], ids=IDS)
 def test_best_genome_lies_in_the_unit_box(config):
     g = np.asarray(run(config).genome)
@@ -497,10 +492,6 @@ def test_ga_beats_the_rest_pose_at_the_cloud_centre():
 # --------------------------------------------------------------------------- internals: known defects
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: fit initialises hill climbing with best_solution/best_fitness of the initial population but leaves "
-    "best_solution_shaped/best_fitness_shaped at nan/inf, so the first tell moves the climber's mean to the "
-    "best first-generation neighbour even when it is worse than the start (mean != best so far)"))
 def test_hill_climber_never_moves_to_a_worse_point():
     st = fit_module._init_jit(spider_cloud(), skeleton(), jax.random.key(0), HC)
     st, _ = fit_module._epoch_jit(skeleton(), HC, st, HC.chunk)  # the executables fit_cloud(HC) compiled
@@ -508,10 +499,6 @@ def test_hill_climber_never_moves_to_a_worse_point():
     np.testing.assert_array_equal(np.asarray(a.mean), np.asarray(a.best_solution))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "BUG: the GA's final refinement refines best_solution plus the final_refine_top - 1 best of the "
-    "population; elitism keeps best_solution in the population, so the best is refined twice and only "
-    "final_refine_top - 1 distinct individuals are refined (the duplicate's evaluations are wasted)"))
 def test_ga_final_refinement_candidates_are_distinct(monkeypatch):
     st = fit_module._init_jit(spider_cloud(), skeleton(), jax.random.key(0), GA)
     for _ in range(GA.generations // GA.epoch):

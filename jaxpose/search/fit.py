@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
+from evosax.algorithms.population_based.base import PopulationBasedAlgorithm
 
 from ..errors import ConfigError
 from ..kinematics import Links, forward_kinematics
@@ -52,7 +53,8 @@ class FitConfig:
         elite_ratio: fraction of the population that may become parents.
         memetic_every: every this many generations, refine the ``memetic_top`` best
             individuals by ``memetic_steps`` Adam steps (0: never).
-        final_refine_steps: Adam steps on the ``final_refine_top`` best at the end (0: none).
+        final_refine_steps: Adam steps at the end (0: none) on the ``final_refine_top`` best
+            individuals (the GA) or on the best point (other algorithms).
         learning_rate: Adam learning rate (genome units).
         init_root_std: spread of the initial root translation genes around the
             cloud's centre (genome units).
@@ -337,12 +339,14 @@ def _search_init1(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfi
     k_pop, k_init, k_run = jax.random.split(key, 3)
     pop0 = _lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config))
     fit0 = _population_cost_fn(skel, obs, bounds, config)(pop0)
-    if config.algorithm == "ga":
+    if isinstance(algo, PopulationBasedAlgorithm):  # the GA, PSO, DE, evosax's SimpleGA, ...
         state = algo.init(k_init, pop0, fit0, params)
-    else:
+    else:  # distribution-based (hill climbing, CMA-ES, ...): start at the best initial individual
         best = jnp.argmin(fit0)
         state = algo.init(k_init, pop0[best], params)
         state = state.replace(best_solution=pop0[best], best_fitness=fit0[best])
+        if hasattr(state, "best_fitness_shaped"):  # hill climbing moves only to better points
+            state = state.replace(best_solution_shaped=pop0[best], best_fitness_shaped=fit0[best])
     P = config.population
     return SearchState(state, k_run, obs, bounds, jnp.asarray(P, jnp.int32), jnp.asarray(0, jnp.int32))
 
@@ -421,10 +425,9 @@ def _finish1(skel: Skeleton, config: FitConfig, st: SearchState):
     best_g, best_f = state.best_solution, state.best_fitness
     evals, grads = st.objective_evaluations, st.gradient_evaluations
     if config.final_refine_steps > 0 and config.final_refine_top > 0:
-        if config.algorithm == "ga":
+        if config.algorithm == "ga":  # elitism keeps the best in the population
             m = min(config.final_refine_top, config.population)
-            order = jnp.argsort(state.fitness)[: m - 1]
-            cand = jnp.concatenate([best_g[None], state.population[order]])
+            cand = state.population[jnp.argsort(state.fitness)[:m]]
         else:
             cand = best_g[None]
         g, f = refine(cost1, cand, config.final_refine_steps, config.learning_rate)
@@ -446,6 +449,7 @@ def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
         i = jnp.argmin(f)
         best_g, best_f, evals, grads = g[i], f[i], jnp.sum(e), jnp.sum(gr)
         bounds = jax.tree_util.tree_map(lambda x: x[0], st.bounds)
+    best_g = jnp.clip(best_g, 0.0, 1.0)  # evosax strategies sample unbounded; decode clips the same way
     pose = decode(skel, bounds, best_g)
     links = forward_kinematics(skel, pose)
     n_dist = (evals + grads).astype(jnp.float32) * cloud.points.shape[0] * skel.num_links
