@@ -55,7 +55,7 @@ class ObjectiveConfig:
     """Static settings of the cost (hashable, so usable as a jit static argument)."""
 
     sigma: float | None = None  # None: cloud_spread(cloud)
-    sigma_factor: float = 1.0  # multiplies the spread
+    sigma_factor: float = 0.25  # multiplies the spread (1: the paper's sigma)
     free_space_weight: float = 1.0
     free_space_samples: int = 6
     free_space_grid: int = 40

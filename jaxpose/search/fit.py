@@ -97,7 +97,7 @@ class FitConfig:
     init_pca_std: float = 0.02
     scale_window: float = 1.5
     islands: int = 4
-    staged: float = 0.0
+    staged: float = 0.5
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
 
     def validate(self) -> "FitConfig":
