@@ -31,6 +31,9 @@ def register(sub) -> None:
     p.add_argument("--islands", type=int, default=FitConfig.islands,
                    help=f"independent populations searched side by side (default {FitConfig.islands})")
     p.add_argument("--no-refine", action="store_true", help="no gradient refinement (memetic or final)")
+    p.add_argument("--sigma-factor", type=float, default=ObjectiveConfig.sigma_factor,
+                   help="sigma = this x the cloud's spread (1: the paper's objective; "
+                        f"default {ObjectiveConfig.sigma_factor})")
     p.add_argument("--free-space-weight", type=float, default=ObjectiveConfig.free_space_weight,
                    help="weight of the free-space term (0: the paper's objective alone)")
     p.add_argument("--seed", type=int, default=0)
@@ -61,6 +64,8 @@ def config_from_args(args) -> FitConfig:
         raise ConfigError(f"--islands must be >= 1, got {args.islands}")
     if args.seed < 0 or args.seed >= 2**32:
         raise ConfigError(f"--seed must lie in 0 .. 2**32-1, got {args.seed}")
+    if not _finite(args, "sigma_factor", "--sigma-factor") > 0:
+        raise ConfigError(f"--sigma-factor must be > 0, got {args.sigma_factor}")
     if _finite(args, "free_space_weight", "--free-space-weight") < 0:
         raise ConfigError(f"--free-space-weight must be >= 0, got {args.free_space_weight}")
     near, far = _finite(args, "near", "--near"), _finite(args, "far", "--far")
@@ -73,7 +78,7 @@ def config_from_args(args) -> FitConfig:
         population=args.population,
         generations=args.generations,
         islands=args.islands,
-        objective=ObjectiveConfig(free_space_weight=args.free_space_weight),
+        objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor),
     )
     if args.no_refine:
         cfg = dataclasses.replace(cfg, memetic_every=0, final_refine_steps=0)
