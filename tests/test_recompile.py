@@ -1,0 +1,112 @@
+"""No recompilation between generations, or between images of the same padded size.
+
+The fit is compiled in three pieces (``search_init``, ``search_epoch``,
+``search_finish``; see :class:`jaxpose.search.Fitter`).  A second cloud with the
+same ``max_points`` (any number of valid points) and the same config must reuse
+all of them, and the epoch function must be compiled once for all the epochs of
+a fit.  Compilations are counted with a ``jax.monitoring`` listener on XLA's
+backend-compile event (it fires once per executable built, cached or not), so
+the checks hold whatever other tests compiled before.  No timing assertions.
+
+A tiny two-link skeleton with a name and population no other test uses keeps the
+compile short and makes sure the first fit really compiles.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+
+import jax
+import numpy as np
+import pytest
+
+from jaxpose.camera import points_to_cloud
+from jaxpose.search import FitConfig, Fitter
+from jaxpose.skeleton import LinkSpec, build_skeleton
+
+# the module, not the function ``jaxpose.search.fit`` that shadows it
+fit_module = importlib.import_module("jaxpose.search.fit")
+
+BACKEND_COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
+MAX_POINTS = 96
+GENERATIONS, EPOCH = 6, 2  # three epochs of equal length: one epoch executable
+
+
+@contextlib.contextmanager
+def count_compiles():
+    """Collect the names of the functions XLA compiles inside the block."""
+    names: list[str] = []
+
+    def listener(event, duration, **kwargs):
+        if event == BACKEND_COMPILE_EVENT:
+            names.append(str(kwargs.get("fun_name", "?")))
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        yield names
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+
+
+@pytest.fixture(scope="module")
+def skeleton():
+    links = [
+        LinkSpec("recompile_a", joint="ball", limits=[[-30, 30]] * 3, length=0.2, radius=0.02),
+        LinkSpec("recompile_b", parent="recompile_a", joint="hinge", limits=[[-60, 60]], length=0.15,
+                 length_range=(0.1, 0.2), radius=0.015),
+    ]
+    return build_skeleton("recompile_probe", links)
+
+
+def cloud(seed: int, n_valid: int):
+    """A noisy bent stick ~1.5 m in front of the camera, padded to MAX_POINTS."""
+    rng = np.random.default_rng(seed)
+    t = rng.uniform(0, 1, n_valid)
+    pts = np.stack([0.3 * t - 0.1, 0.1 * np.sin(3 * t), 1.5 + 0.05 * t], -1)
+    pts = pts + 0.01 * rng.standard_normal(pts.shape)
+    c = points_to_cloud(pts, MAX_POINTS, seed)
+    assert c.points.shape == (MAX_POINTS, 3)
+    return c
+
+
+def config(**kw) -> FitConfig:
+    # memetic and final refinement (gradients through the cost) off: they only add compile time here
+    base = dict(population=7, generations=GENERATIONS, chunk=EPOCH, memetic_every=0, final_refine_steps=0)
+    base.update(kw)
+    return FitConfig(**base)
+
+
+def epoch_cache_size():
+    size = getattr(getattr(fit_module, "_epoch_jit", None), "_cache_size", None)
+    return size() if callable(size) else None
+
+
+def test_same_padded_size_does_not_recompile(skeleton):
+    cfg = config()
+    assert cfg.epoch == EPOCH and GENERATIONS % EPOCH == 0
+    fitter = Fitter(skeleton, cfg)
+    epochs_seen = []
+    cache_before = epoch_cache_size()
+
+    with count_compiles() as first:
+        r1 = fitter.run(cloud(0, 80), jax.random.key(0), progress=lambda g, c, e: epochs_seen.append(g))
+    assert epochs_seen == [2, 4, 6]
+    # the counter works: this config is new to the process, so the first fit compiled
+    assert first, "the first fit compiled nothing: is the compile listener still firing?"
+    epoch_compiles = [n for n in first if "search_epoch" in n]
+    assert len(epoch_compiles) == 1, f"epoch compiled {len(epoch_compiles)} times for 3 epochs: {first}"
+    if cache_before is not None:
+        assert epoch_cache_size() == cache_before + 1
+
+    # another image of the same padded size: other points, other number of valid points, other seed
+    with count_compiles() as second:
+        r2 = Fitter(skeleton, cfg).run(cloud(1, 57), jax.random.key(1))
+    assert second == [], f"recompiled for a cloud of the same padded size: {second}"
+    assert np.isfinite(float(r1.cost)) and np.isfinite(float(r2.cost))
+    assert int(r2.objective_evaluations) == int(r1.objective_evaluations)
+
+    # and a third, through the convenience wrapper
+    with count_compiles() as third:
+        fit_module.fit_cloud(cloud(2, MAX_POINTS), skeleton, seed=3, config=cfg)
+    assert third == [], f"recompiled in fit_cloud: {third}"
