@@ -1,0 +1,595 @@
+"""Shared helpers of the experiment scripts (``paper_table.py``, ``sweep_population.py``).
+
+One place for each idea:
+
+- data sets: :func:`ensure_data` (``make data`` when ``data/`` lacks a model),
+  :func:`load_dataset`, :func:`select_images`, :func:`load_image` (depth, cloud, truth);
+- configurations: :func:`make_config` (FitConfig defaults plus overrides),
+  :func:`planned_evaluations` / :func:`match_generations` (evaluation budgets),
+  :func:`run_fingerprint` (what a stored run depends on);
+- one fit, scored: :func:`fit_image`;
+- the resumable run store: :class:`RunStore` (one JSON file per finished fit) and
+  :class:`FitRunner` (skips stored fits, warms the compiler up once per config);
+- the machine: :func:`machine_info`;
+- atomic outputs: :func:`write_json`, :func:`write_csv`, :func:`write_text`, :func:`save_figure`;
+- summaries: :func:`seed_stats`.
+
+The scripts run from the repository root or anywhere else (``python experiments/x.py``).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import datetime
+import hashlib
+import io
+import json
+import math
+import os
+import platform
+import re
+import subprocess
+import sys
+import time
+from typing import NamedTuple
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+for _p in (ROOT, HERE):
+    if _p not in sys.path:
+        sys.path.insert(0, _p)
+
+import jax  # noqa: E402
+import numpy as np  # noqa: E402
+
+from jaxpose.io.fit_result import package_versions  # noqa: E402
+from jaxpose.io.results import atomic_write, to_jsonable  # noqa: E402
+from jaxpose.io.skeleton_file import load_skeleton  # noqa: E402
+from jaxpose.io.truth import read_links  # noqa: E402
+from jaxpose.metrics import evaluate  # noqa: E402
+from jaxpose.pipeline import DepthOptions, load_observation  # noqa: E402
+from jaxpose.search.fit import FitConfig, fit_cloud  # noqa: E402
+from jaxpose.skeleton import Skeleton  # noqa: E402
+
+DATA_DIR = os.path.join(ROOT, "data")
+RESULTS_DIR = os.path.join(HERE, "results")
+RUNS_DIR = os.path.join(RESULTS_DIR, "runs")  # git-ignored
+MODELS = ("spider", "humanoid")
+METRICS = ("pcp", "pcp_10cm", "pck_10cm", "mpjpe_mm")
+
+
+def log(msg: str = "") -> None:
+    print(msg, flush=True)
+
+
+def rel(path: str) -> str:
+    """A path relative to the repository root when it lies inside it (for messages)."""
+    p = os.path.relpath(os.path.abspath(path), ROOT)
+    return path if p.startswith("..") else p
+
+
+# --------------------------------------------------------------------------- data
+
+
+class Dataset(NamedTuple):
+    model: str
+    folder: str
+    skeleton: Skeleton
+    index: dict
+    fingerprint: str  # sha256 of index.json (changes when the data are regenerated differently)
+
+    @property
+    def entries(self) -> list[dict]:
+        return self.index["images"]
+
+
+class Image(NamedTuple):
+    model: str
+    name: str
+    entry: dict  # the index.json entry (image, background, truth, metadata)
+    depth: np.ndarray  # metres
+    intrinsics: object  # jaxpose.camera.Intrinsics
+    cloud: object  # jaxpose.objective.Cloud
+    truth: dict  # {"names", "start" (L, 3), "end" (L, 3)} in the skeleton's link order
+
+
+def ensure_data(models, data_dir: str = DATA_DIR) -> None:
+    """Write the data sets that ``data_dir`` lacks, with ``make data``'s code (seed 0)."""
+    missing = [m for m in models if not os.path.exists(os.path.join(data_dir, m, "index.json"))]
+    if not missing:
+        return
+    from make_data import write_dataset
+
+    os.makedirs(data_dir, exist_ok=True)
+    for m in missing:
+        log(f"{rel(os.path.join(data_dir, m))}: missing, generating it (experiments/make_data.py) ...")
+        write_dataset(m, data_dir)
+
+
+def load_dataset(model: str, data_dir: str = DATA_DIR) -> Dataset:
+    folder = os.path.join(data_dir, model)
+    path = os.path.join(folder, "index.json")
+    with open(path, "rb") as f:
+        raw = f.read()
+    index = json.loads(raw)
+    skel = load_skeleton(index["skeleton"]["name"])
+    return Dataset(model, folder, skel, index, hashlib.sha256(raw).hexdigest()[:12])
+
+
+def select_images(ds: Dataset, spec=None) -> list[dict]:
+    """Index entries: all (``None``), ``n`` evenly spread through the index (an int), or by name (strings).
+
+    ``n`` images are those at positions ``floor((i + 1/2) * N / n)``, ``i = 0 .. n-1``
+    (for the spider's 4 poses x 5 inclinations this mixes poses and inclinations).
+    """
+    entries = ds.entries
+    if spec is None:
+        return list(entries)
+    if isinstance(spec, int):
+        return spread(entries, spec)
+    by_name = {e["name"]: e for e in entries}
+    unknown = [s for s in spec if s not in by_name]
+    if unknown:
+        raise SystemExit(f"{ds.model}: no image named {', '.join(unknown)} (have {', '.join(by_name)})")
+    return [by_name[s] for s in spec]
+
+
+def spread(items: list, k: int) -> list:
+    """``k`` of ``items`` evenly spread: positions ``floor((i + 1/2) * N / k)``."""
+    n = len(items)
+    k = max(1, min(k, n))
+    return [items[int((i + 0.5) * n / k)] for i in range(k)]
+
+
+def parse_images_arg(values):
+    """``--images``: nothing (all), one integer (that many per model) or image names."""
+    if not values:
+        return None
+    if len(values) == 1 and values[0].isdigit():
+        return int(values[0])
+    return list(values)
+
+
+def depth_options(ds: Dataset, entry: dict) -> DepthOptions:
+    """How every experiment turns a data set image into a cloud (DepthOptions defaults otherwise)."""
+    k = ds.index["intrinsics"]
+    return DepthOptions(
+        intrinsics=f"{k['fx']},{k['fy']},{k['cx']},{k['cy']}",
+        depth_scale=ds.index.get("depth_scale", DepthOptions.depth_scale),
+        background=os.path.join(ds.folder, entry["background"]) if entry.get("background") else None,
+    )
+
+
+def depth_options_record(ds: Dataset) -> dict:
+    """The depth options of a data set, without the per-image background path."""
+    d = dataclasses.asdict(depth_options(ds, ds.entries[0]))
+    d["background"] = "<image>_background.png" if d["background"] else None
+    return d
+
+
+_IMAGES: dict = {}
+
+
+def load_image(ds: Dataset, entry: dict) -> Image:
+    """Depth, cloud and truth of one data set image (cached)."""
+    key = (ds.folder, entry["name"])
+    if key not in _IMAGES:
+        depth, k, cloud = load_observation(os.path.join(ds.folder, entry["image"]), depth_options(ds, entry))
+        t = read_links(os.path.join(ds.folder, entry["truth"]))
+        order = [t.names.index(n) for n in ds.skeleton.link_names]
+        truth = {"names": list(ds.skeleton.link_names), "start": t.start[order], "end": t.end[order]}
+        _IMAGES[key] = Image(ds.model, entry["name"], entry, depth, k, cloud, truth)
+    return _IMAGES[key]
+
+
+# --------------------------------------------------------------------------- configurations
+
+
+def make_config(base: FitConfig, overrides: dict | None = None) -> FitConfig:
+    """``base`` with FitConfig fields replaced; ``overrides["objective"]`` replaces ObjectiveConfig fields."""
+    overrides = dict(overrides or {})
+    obj = overrides.pop("objective", None)
+    cfg = dataclasses.replace(base, **overrides)
+    if obj:
+        cfg = dataclasses.replace(cfg, objective=dataclasses.replace(cfg.objective, **obj))
+    return cfg.validate()
+
+
+def planned_evaluations(config: FitConfig) -> dict:
+    """Objective and gradient evaluations a fit with ``config`` will count (mirrors jaxpose/search/fit.py).
+
+    Initial population ``P``; ``P`` per generation; with the memetic step (GA) ``m =
+    min(memetic_top, P)`` evaluations and ``m * memetic_steps`` gradients after every
+    epoch (every ``memetic_every`` generations and after a shorter last epoch); the
+    final refinement evaluates its ``c`` candidates (GA: ``min(final_refine_top, P)``,
+    otherwise 1) and takes ``c * final_refine_steps`` gradients; times ``islands``.
+    :meth:`FitRunner.run` compares this with every fit's actual counts.
+    """
+    P, G = config.population, config.generations
+    obj, grad = P + G * P, 0
+    if config.memetic_on:
+        epochs = math.ceil(G / config.epoch)
+        m = min(config.memetic_top, P)
+        obj += epochs * m
+        grad += epochs * m * config.memetic_steps
+    if config.final_refine_steps > 0 and config.final_refine_top > 0:
+        c = min(config.final_refine_top, P) if config.algorithm == "ga" else 1
+        obj += c
+        grad += c * config.final_refine_steps
+    isl = getattr(config, "islands", 1)
+    return {"objective": obj * isl, "gradient": grad * isl, "total": (obj + grad) * isl}
+
+
+def match_generations(config: FitConfig, target: dict, what: str = "total") -> FitConfig:
+    """``config`` with the generation count whose planned ``what`` evaluations ("total" =
+    objective + gradient, or "objective") come closest to ``target[what]`` (ties: more)."""
+    if what == "none":
+        return config
+    goal = target[what]
+    count = lambda g: planned_evaluations(dataclasses.replace(config, generations=g))[what]  # noqa: E731
+    slope = max(count(config.generations + 1) - count(config.generations), 1)
+    g0 = max(1, config.generations + int(round((goal - count(config.generations)) / slope)))
+    best = min(range(max(1, g0 - 3), g0 + 4), key=lambda g: (abs(count(g) - goal), -g))
+    return dataclasses.replace(config, generations=best)
+
+
+def _code_fingerprint() -> str:
+    """sha256 over the jaxpose modules loaded by this module's imports (the code a fit
+    runs) and skeletons/: a stored run is reused only by the same code."""
+    h = hashlib.sha256()
+    pkg = os.path.join(ROOT, "jaxpose") + os.sep
+    files = {os.path.abspath(m.__file__) for m in list(sys.modules.values())
+             if getattr(m, "__file__", None) and os.path.abspath(m.__file__).startswith(pkg)}
+    for d, dirs, names in os.walk(os.path.join(ROOT, "skeletons")):
+        files |= {os.path.join(d, n) for n in names}
+    for p in sorted(files):
+        h.update(os.path.relpath(p, ROOT).encode())
+        with open(p, "rb") as f:
+            h.update(hashlib.sha256(f.read()).digest())
+    return h.hexdigest()[:12]
+
+
+CODE_FINGERPRINT = _code_fingerprint()  # computed once, right after the imports above
+
+
+def code_fingerprint() -> str:
+    return CODE_FINGERPRINT
+
+
+def short_hash(obj) -> str:
+    return hashlib.sha256(json.dumps(to_jsonable(obj), sort_keys=True).encode()).hexdigest()[:10]
+
+
+def run_fingerprint(ds: Dataset, config: FitConfig) -> str:
+    """Hash of everything a fit's outcome depends on besides image and seed: the config,
+    the depth options, the data set (index.json) and the code (:data:`CODE_FINGERPRINT`)."""
+    return short_hash({"config": config.to_dict(), "depth": depth_options_record(ds), "data": ds.fingerprint,
+                       "code": code_fingerprint()})
+
+
+# --------------------------------------------------------------------------- one fit
+
+
+def fit_image(ds: Dataset, img: Image, config: FitConfig, seed: int) -> dict:
+    """Fit one image and score it against its truth; a JSON-ready record.
+
+    ``wall_seconds`` is the fit's own wall time (:attr:`FitResult.wall_time`: cloud
+    to result, compilation included when this config was not compiled yet);
+    ``epoch_times`` holds ``[generation, seconds since the call]`` after every
+    compiled chunk (the progress callback; it waits for the chunk's result).
+    """
+    epochs: list = []
+    t0 = time.perf_counter()
+
+    def progress(generation, *_):
+        epochs.append([int(generation), time.perf_counter() - t0])
+
+    res = fit_cloud(img.cloud, ds.skeleton, seed, config, progress)
+    call = time.perf_counter() - t0
+    start, end = np.asarray(res.links.start, np.float64), np.asarray(res.links.end, np.float64)
+    ev = evaluate(start, end, img.truth["start"], img.truth["end"], ds.skeleton)
+    return {
+        "model": ds.model,
+        "image": img.name,
+        "seed": int(seed),
+        "algorithm": config.algorithm,
+        "population": config.population,
+        "generations": config.generations,
+        "symmetric": ev["symmetric"],
+        "strict": ev["strict"],
+        "cost": float(res.cost),
+        "objective_evaluations": int(res.objective_evaluations),
+        "gradient_evaluations": int(res.gradient_evaluations),
+        "distance_evaluations": float(res.distance_evaluations),
+        "wall_seconds": float(res.wall_time),
+        "call_seconds": call,
+        "epoch_times": epochs,
+        "links": {"names": list(ds.skeleton.link_names), "start": start.tolist(), "end": end.tolist()},
+        "meta": {k: v for k, v in img.entry.items() if k not in ("image", "background", "truth")},
+        "machine": machine_id(),
+        "finished": now_iso(),
+    }
+
+
+# --------------------------------------------------------------------------- run store
+
+
+def run_key(*parts) -> str:
+    """A file-name-safe key from its parts, joined by ``__``."""
+    return "__".join(re.sub(r"[^A-Za-z0-9._=+-]+", "-", str(p)) for p in parts)
+
+
+class RunStore:
+    """Finished fits, one JSON file each (``<folder>/<key>.json``, written atomically).
+
+    A run killed at any point loses only the fit in progress; a rerun skips every stored key.
+    """
+
+    def __init__(self, folder: str):
+        self.folder = folder
+        os.makedirs(folder, exist_ok=True)
+
+    def path(self, key: str) -> str:
+        return os.path.join(self.folder, key + ".json")
+
+    def get(self, key: str) -> dict | None:
+        p = self.path(key)
+        if not os.path.exists(p):
+            return None
+        try:
+            with open(p) as f:
+                return json.load(f)
+        except (OSError, json.JSONDecodeError) as e:  # cannot happen with atomic writes, but never trust
+            log(f"warning: {rel(p)}: unreadable ({e}); running that fit again")
+            return None
+
+    def put(self, key: str, record: dict) -> None:
+        write_json(self.path(key), record)
+
+
+class FitRunner:
+    """Runs fits through a :class:`RunStore`.
+
+    Before the first fit that has to run for a (model, config), a *warm-up* fit of the
+    same config on the same image and seed compiles everything; it is stored as
+    ``warmup__...`` (its wall time minus the real fit's is the compile time, see
+    :func:`compile_seconds`) and not scored further.  Every fit that runs prints one
+    progress line; stored fits are skipped silently and counted.
+    """
+
+    def __init__(self, store: RunStore, total: int):
+        self.store = store
+        self.total = total
+        self.done = 0
+        self.skipped = 0
+        self.ran = 0
+        self.warm: set = set()
+        self.warned: set = set()
+
+    def keys(self, ds: Dataset, image: str, label: str, config: FitConfig, seed: int) -> tuple[str, str]:
+        fp = run_fingerprint(ds, config)
+        return run_key(ds.model, image, label, f"seed{seed}", fp), run_key("warmup", ds.model, label, fp)
+
+    def run(self, ds: Dataset, entry: dict, label: str, config: FitConfig, seed: int, extra: dict | None = None,
+            quiet_skip: bool = True) -> dict:
+        key, wkey = self.keys(ds, entry["name"], label, config, seed)
+        self.done += 1
+        rec = self.store.get(key)
+        if rec is not None:
+            self.skipped += 1
+            return rec
+        img = load_image(ds, entry)
+        if wkey not in self.warm:
+            self._warm_up(ds, img, label, config, seed, wkey)
+        rec = fit_image(ds, img, config, seed)
+        rec.update({"label": label, "key": key, "fingerprint": run_fingerprint(ds, config),
+                    "planned_evaluations": planned_evaluations(config), **(extra or {})})
+        self._check_counts(rec, config, label)
+        self.store.put(key, rec)
+        self.ran += 1
+        s = rec["symmetric"]
+        log(f"[{self.done:>4}/{self.total}] {ds.model:<8} {img.name:<16} {label:<20} seed {seed}: "
+            f"PCP {s['pcp']:.3f} (strict {rec['strict']['pcp']:.3f}, MPJPE {s['mpjpe_mm']:5.0f} mm) "
+            f"{rec['wall_seconds']:7.2f} s")
+        return rec
+
+    def _warm_up(self, ds, img, label, config, seed, wkey):
+        log(f"         {ds.model:<8} {img.name:<16} {label:<20} warm-up (compiling P={config.population}, "
+            f"G={config.generations}) ...")
+        rec = fit_image(ds, img, config, seed)
+        rec.update({"label": label, "warmup": True, "fingerprint": run_fingerprint(ds, config)})
+        if self.store.get(wkey) is None:  # keep the first warm-up (a cold process either way)
+            self.store.put(wkey, rec)
+        self.warm.add(wkey)
+        log(f"         {'':<8} {'':<16} {'':<20} warm-up took {rec['wall_seconds']:.1f} s")
+
+    def _check_counts(self, rec, config, label):
+        plan = planned_evaluations(config)
+        got = (rec["objective_evaluations"], rec["gradient_evaluations"])
+        if got != (plan["objective"], plan["gradient"]) and label not in self.warned:
+            self.warned.add(label)
+            log(f"warning: {label}: the fit counted {got[0]} objective + {got[1]} gradient evaluations, "
+                f"experiments/common.py planned {plan['objective']} + {plan['gradient']}: "
+                "planned_evaluations() no longer mirrors jaxpose/search/fit.py (budgets may not match)")
+
+    def warmup_record(self, ds: Dataset, label: str, config: FitConfig) -> dict | None:
+        return self.store.get(self.keys(ds, "", label, config, 0)[1])
+
+
+def compile_seconds(warmup: dict | None, records: list[dict]) -> float | None:
+    """Warm-up wall time minus the wall time of the real fit of the same image and seed
+    (or, when that one is not among ``records``, minus their median)."""
+    if not warmup or not records:
+        return None
+    same = [r["wall_seconds"] for r in records if r["image"] == warmup["image"] and r["seed"] == warmup["seed"]]
+    ref = same[0] if same else float(np.median([r["wall_seconds"] for r in records]))
+    return max(0.0, warmup["wall_seconds"] - ref)
+
+
+# --------------------------------------------------------------------------- machine
+
+
+def now_iso() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+def cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.lower().startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    if sys.platform == "darwin":
+        try:
+            return subprocess.run(["sysctl", "-n", "machdep.cpu.brand_string"], capture_output=True, text=True,
+                                  timeout=5).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            pass
+    return platform.processor() or platform.machine()
+
+
+def usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def _git_head() -> str | None:
+    try:
+        out = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                             timeout=5)
+        dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--", "jaxpose", "skeletons"],
+                               capture_output=True, text=True, timeout=5).stdout.strip()
+        return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def machine_id() -> str:
+    """One line naming the machine a timing comes from."""
+    dev = jax.devices()[0]
+    acc = "" if dev.platform == "cpu" else f", {dev.device_kind}"
+    return f"{cpu_model()}, {usable_cores()} cores, {jax.default_backend()}{acc}"
+
+
+def machine_info() -> dict:
+    devs = jax.devices()
+    return {
+        "cpu": cpu_model(),
+        "cores": os.cpu_count(),
+        "cores_usable": usable_cores(),
+        "memory_gib": _memory_gib(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "backend": jax.default_backend(),
+        "devices": [f"{d.platform}:{d.device_kind}" for d in devs],
+        "xla_flags": os.environ.get("XLA_FLAGS"),
+        "versions": package_versions(),
+        "jaxpose_code": code_fingerprint(),
+        "git": _git_head(),
+        "date": now_iso(),
+    }
+
+
+def _memory_gib() -> float | None:
+    try:
+        return round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+# --------------------------------------------------------------------------- atomic outputs
+
+
+def _clean(x):
+    """JSON-ready, with NaN/inf as null."""
+    x = to_jsonable(x)
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_clean(v) for v in x]
+    return x
+
+
+def _ensure_dir(path: str) -> None:
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+
+
+def write_json(path: str, data) -> None:
+    _ensure_dir(path)
+    text = json.dumps(_clean(data), indent=2, allow_nan=False) + "\n"
+    atomic_write(path, lambda f: f.write(text))
+
+
+def write_text(path: str, text: str) -> None:
+    _ensure_dir(path)
+    atomic_write(path, lambda f: f.write(text))
+
+
+def write_csv(path: str, rows: list[dict], columns: list[str]) -> None:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, columns, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if v is None else (f"{v:.6g}" if isinstance(v, float) else v))
+                    for k, v in r.items()})
+    write_text(path, buf.getvalue())
+
+
+def save_figure(fig, path: str, dpi: int = 120) -> None:
+    """Save a matplotlib figure atomically as PNG and close it."""
+    import matplotlib.pyplot as plt
+
+    _ensure_dir(path)
+    try:
+        atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=dpi), binary=True)
+    finally:
+        plt.close(fig)
+
+
+def pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+# --------------------------------------------------------------------------- summaries
+
+
+def seed_stats(records: list[dict], value) -> dict:
+    """``mean`` of ``value(record)`` over all records, and ``std`` over seeds of the per-seed
+    means (sample standard deviation; ``None`` with one seed); ``per_seed`` means."""
+    if not records:
+        return {"mean": None, "std": None, "per_seed": {}}
+    vals = np.array([value(r) for r in records], np.float64)
+    seeds = sorted({r["seed"] for r in records})
+    per_seed = {s: float(np.mean([value(r) for r in records if r["seed"] == s])) for s in seeds}
+    std = float(np.std(list(per_seed.values()), ddof=1)) if len(seeds) > 1 else None
+    return {"mean": float(vals.mean()), "std": std, "per_seed": per_seed}
+
+
+def flat_row(rec: dict) -> dict:
+    """The scalar columns of a fit record (for CSV files)."""
+    row = {k: rec.get(k) for k in ("model", "image", "label", "algorithm", "seed", "population", "generations",
+                                   "objective_evaluations", "gradient_evaluations", "distance_evaluations",
+                                   "wall_seconds", "cost")}
+    for m in METRICS:
+        row[m] = rec["symmetric"][m]
+        row[f"{m}_strict"] = rec["strict"][m]
+    meta = rec.get("meta") or {}
+    row["inclination_deg"] = meta.get("inclination_deg")
+    row["occluded_links"] = len(meta.get("occluded_links") or [])
+    return row
+
+
+CSV_METRIC_COLUMNS = [c for m in METRICS for c in (m, f"{m}_strict")]
