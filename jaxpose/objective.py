@@ -92,12 +92,112 @@ def point_capsule_distance(points, start, end, radius):
     return jnp.abs(jnp.sqrt(jnp.maximum(jnp.sum(diff * diff, -1), _TINY_D2)) - radius)
 
 
+def _link_scan(bx, by, bz, start, ab, inv, a_ab, radius):
+    """Nearest capsule of every (individual, point) of one block: ``(d, index)``, both ``(P, B)``.
+
+    A forward-only scan over links with a running minimum; ``start, ab (L, P, 3)``,
+    ``inv, a_ab, radius (L, P)`` are link-major.
+    """
+    P, B = start.shape[1], bx.shape[0]
+
+    def link(carry, lk):
+        best, arg, k = carry
+        a, u, iv, c, r = lk  # (P, 3), (P, 3), (P,), (P,), (P,)
+        ux, uy, uz = u[:, 0:1], u[:, 1:2], u[:, 2:3]
+        t = jnp.clip((bx * ux + by * uy + bz * uz - c[:, None]) * iv[:, None], 0.0, 1.0)
+        dx = bx - a[:, 0:1] - t * ux
+        dy = by - a[:, 1:2] - t * uy
+        dz = bz - a[:, 2:3] - t * uz
+        d = jnp.abs(jnp.sqrt(jnp.maximum(dx * dx + dy * dy + dz * dz, _TINY_D2)) - r[:, None])
+        closer = d < best
+        return (jnp.where(closer, d, best), jnp.where(closer, k, arg), k + 1), None
+
+    init = (jnp.full((P, B), jnp.inf, bx.dtype), jnp.zeros((P, B), jnp.int32), jnp.int32(0))
+    (best, arg, _), _ = jax.lax.scan(link, init, (start, ab, inv, a_ab, radius))
+    return best, arg
+
+
+def _point_terms(bx, by, bz, bw, a, b, r, inv_sigma):
+    """``sum_b w_b ln(1 + d_pb * inv_sigma)`` for capsules gathered per point: ``a, b (P, B, 3)``, ``r (P, B)``.
+
+    The same arithmetic as :func:`_link_scan`, written for one capsule per point so
+    that its derivatives are those of the nearest capsule.
+    """
+    ab = b - a
+    inv = 1.0 / jnp.maximum(jnp.sum(ab * ab, -1), _EPS)
+    px = jnp.stack(jnp.broadcast_arrays(bx[None], by[None], bz[None]), -1)  # (1, B, 3)
+    t = jnp.clip((jnp.sum(px * ab, -1) - jnp.sum(a * ab, -1)) * inv, 0.0, 1.0)
+    diff = px - a - t[..., None] * ab
+    d = jnp.abs(jnp.sqrt(jnp.maximum(jnp.sum(diff * diff, -1), _TINY_D2)) - r)
+    return jnp.sum(bw * jnp.log1p(d * inv_sigma), -1)
+
+
+def _prepare(start, end, radius):
+    ab = end - start
+    inv = 1.0 / jnp.maximum(jnp.sum(ab * ab, -1), _EPS)  # (P, L)
+    a_ab = jnp.sum(start * ab, -1)  # (P, L)
+    # link-major (L, P, ...) so the scan walks over links
+    return jnp.moveaxis(start, -2, 0), jnp.moveaxis(ab, -2, 0), inv.T, a_ab.T, jnp.moveaxis(radius, -1, 0)
+
+
+@jax.custom_vjp
+def _blocked_sum(px, py, pz, wb, start, end, radius, inv_sigma):
+    """``(P,)``: sum over blocks of :func:`_point_terms` with each point's nearest capsule."""
+    links = _prepare(start, end, radius)
+
+    def block(total, xs):
+        bx, by, bz, bw = xs
+        best, _ = _link_scan(bx, by, bz, *links)
+        return total + jnp.sum(bw * jnp.log1p(best * inv_sigma), -1), None
+
+    total, _ = jax.lax.scan(block, jnp.zeros(start.shape[0], start.dtype), (px, py, pz, wb))
+    return total
+
+
+def _blocked_sum_fwd(px, py, pz, wb, start, end, radius, inv_sigma):
+    return _blocked_sum(px, py, pz, wb, start, end, radius, inv_sigma), (px, py, pz, wb, start, end, radius, inv_sigma)
+
+
+def _blocked_sum_bwd(res, g):
+    """Reverse mode through the nearest capsule only: rescan each block for the
+    argmin (forward-only, no stored residuals), gather that capsule per point,
+    differentiate :func:`_point_terms`, and scatter back with a one-hot product."""
+    px, py, pz, wb, start, end, radius, inv_sigma = res
+    links = _prepare(start, end, radius)
+    L = start.shape[1]
+    take = jax.vmap(lambda x, i: x[i])  # (P, L, ...) gathered by (P, B) indices
+
+    def block(acc, xs):
+        bx, by, bz, bw = xs
+        _, arg = _link_scan(bx, by, bz, *links)
+        a, b, r = take(start, arg), take(end, arg), take(radius, arg)
+        _, vjp = jax.vjp(_point_terms, bx, by, bz, bw, a, b, r, inv_sigma)
+        gx, gy, gz, gw, ga, gb, gr, gs = vjp(g)
+        onehot = jax.nn.one_hot(arg, L, dtype=start.dtype)  # (P, B, L)
+        acc = (
+            acc[0] + jnp.einsum("pbl,pbc->plc", onehot, ga),
+            acc[1] + jnp.einsum("pbl,pbc->plc", onehot, gb),
+            acc[2] + jnp.einsum("pbl,pb->pl", onehot, gr),
+            acc[3] + gs,
+        )
+        return acc, (gx, gy, gz, gw)
+
+    zero = (jnp.zeros_like(start), jnp.zeros_like(end), jnp.zeros_like(radius), jnp.zeros_like(inv_sigma))
+    (g_start, g_end, g_radius, g_inv), (gx, gy, gz, gw) = jax.lax.scan(block, zero, (px, py, pz, wb))
+    return gx, gy, gz, gw, g_start, g_end, g_radius, g_inv
+
+
+_blocked_sum.defvjp(_blocked_sum_fwd, _blocked_sum_bwd)
+
+
 def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = 1024) -> jax.Array:
     """The paper's data term for a population: ``start, end (P, L, 3)``, ``radius (P, L)``.
 
     Streams over blocks of points (outer scan) and over links (inner scan) with a
     running minimum, on separate coordinate arrays, so memory is
     ``O(P * L + P * block)``: no ``P x N x L`` array is ever formed.  Returns ``(P,)``.
+    Reverse-mode derivatives (custom VJP) flow through each point's nearest capsule
+    only, rescanning instead of storing per-link residuals.
     """
     pts, w = _present(cloud)
     N = pts.shape[0]
@@ -109,32 +209,10 @@ def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = 1024) -> jax
         w = jnp.concatenate([w, jnp.zeros((pad,), w.dtype)])
     px, py, pz = (pts[:, k].reshape(nb, B) for k in range(3))
     wb = w.reshape(nb, B)
-
-    ab = end - start
-    inv = 1.0 / jnp.maximum(jnp.sum(ab * ab, -1), _EPS)  # (P, L)
-    a_ab = jnp.sum(start * ab, -1)  # (P, L)
-    # link-major (L, P, ...) so the inner scan walks over links
-    links = (jnp.moveaxis(start, -2, 0), jnp.moveaxis(ab, -2, 0), inv.T, a_ab.T, jnp.moveaxis(radius, -1, 0))
-    inv_sigma = 1.0 / sigma
-    P = start.shape[0]
-
-    def block_cost(total, xs):
-        bx, by, bz, bw = xs  # (B,)
-
-        def link(best, lk):
-            a, u, iv, c, r = lk  # (P, 3), (P, 3), (P,), (P,), (P,)
-            ux, uy, uz = u[:, 0:1], u[:, 1:2], u[:, 2:3]
-            t = jnp.clip((bx * ux + by * uy + bz * uz - c[:, None]) * iv[:, None], 0.0, 1.0)
-            dx = bx - a[:, 0:1] - t * ux
-            dy = by - a[:, 1:2] - t * uy
-            dz = bz - a[:, 2:3] - t * uz
-            d = jnp.abs(jnp.sqrt(jnp.maximum(dx * dx + dy * dy + dz * dz, _TINY_D2)) - r[:, None])
-            return jnp.minimum(best, d), None
-
-        best, _ = jax.lax.scan(link, jnp.full((P, B), jnp.inf, pts.dtype), links)
-        return total + jnp.sum(bw * jnp.log1p(best * inv_sigma), -1), None
-
-    total, _ = jax.lax.scan(block_cost, jnp.zeros(P, pts.dtype), (px, py, pz, wb))
+    P, L = start.shape[0], start.shape[1]
+    radius = jnp.broadcast_to(jnp.asarray(radius, start.dtype), (P, L))
+    inv_sigma = (1.0 / jnp.asarray(sigma, start.dtype)).astype(start.dtype)
+    total = _blocked_sum(px, py, pz, wb, start, end, radius, inv_sigma)
     return total / jnp.maximum(jnp.sum(w), _EPS)
 
 
