@@ -24,7 +24,7 @@ from jaxpose.search.fit import FitConfig
 # Everything else comes from FitConfig()'s defaults (and --population / --generations).
 VARIANTS = {
     "ga": {"algorithm": "ga"},
-    "ga-paper-objective": {"algorithm": "ga", "objective": {"free_space_weight": 0.0}},
+    "ga-paper-objective": {"algorithm": "ga", "objective": {"free_space_weight": 0.0, "sigma_factor": 1.0}},
     "hc": {"algorithm": "hc"},
 }
 # Every other variant gets the generation count that brings its evaluation count
