@@ -60,10 +60,14 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 if REPO not in sys.path:  # run as a script from anywhere without installing
     sys.path.insert(0, REPO)
+if HERE not in sys.path:  # experiments/common.py
+    sys.path.insert(0, HERE)
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
+from common import cpu_model  # noqa: E402  (experiments/common.py)
+from jaxpose.io.results import atomic_write  # noqa: E402
 from jaxpose.objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, point_capsule_distance  # noqa: E402
 
 SCHEMA = 1
@@ -116,20 +120,8 @@ def clean(x):
 
 def atomic_write_text(path: str, text: str) -> None:
     """Write ``text`` to a temporary file beside ``path`` and rename it over ``path``."""
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-" + os.path.basename(path) + "-", dir=d)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    atomic_write(path, lambda f: f.write(text))
 
 
 def write_json(path: str, data) -> None:
@@ -177,17 +169,6 @@ class CompileWatch:
 
 
 # --------------------------------------------------------------------------- machine
-
-
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown"
 
 
 def memory_gib():

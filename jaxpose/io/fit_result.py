@@ -12,7 +12,8 @@ from importlib import metadata
 
 import numpy as np
 
-from ..skeleton import JOINT_DOF, Skeleton
+from ..skeleton import Skeleton
+from .truth import pose_dict
 
 SCHEMA_VERSION = 1
 
@@ -54,15 +55,8 @@ def links_table(skel: Skeleton, links) -> list[dict]:
 
 
 def params_table(skel: Skeleton, pose) -> dict:
-    angles = np.asarray(pose.angles, np.float64)
-    lengths = np.asarray(pose.lengths, np.float64)
-    return {
-        "root_translation": np.asarray(pose.root_t, np.float64).tolist(),
-        "root_rpy": np.asarray(pose.root_rpy, np.float64).tolist(),
-        "scale": float(pose.scale),
-        "joints": {n: angles[i, : JOINT_DOF[j]].tolist() for i, (n, j) in enumerate(zip(skel.link_names, skel.joint_types))},
-        "lengths": {n: float(lengths[i]) for i, n in enumerate(skel.link_names)},
-    }
+    """The fitted parameters by name (the same schema as a truth file's pose)."""
+    return pose_dict(skel, pose)
 
 
 def result_document(skel: Skeleton, skeleton_file: str | None, result, config, seed: int, inputs: dict) -> dict:
