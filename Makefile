@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench paper data venv clean
+.PHONY: demo test bench paper sweep data venv clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -28,6 +28,9 @@ data: $(STAMP)
 
 paper: $(STAMP)
 	$(BIN)/python experiments/paper_table.py
+
+sweep: $(STAMP)
+	$(BIN)/python experiments/sweep_population.py
 
 clean:
 	rm -rf out data experiments/results/runs
