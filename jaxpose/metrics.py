@@ -113,9 +113,12 @@ def link_attributes(skel: Skeleton, decimals: int = 5) -> list[tuple]:
     out = []
     for i, jt in enumerate(skel.joint_types):
         dof = JOINT_DOF[jt]
+        lo, hi = r(np.asarray(skel.angle_lo)[i, :dof]), r(np.asarray(skel.angle_hi)[i, :dof])
+        if jt == "hinge":  # a hinge about -axis with negated limits reaches the same poses: mirrored legs match
+            lo, hi = min((lo, hi), (r(-np.asarray(hi)), r(-np.asarray(lo))))
         out.append((
             jt,
-            r(np.asarray(skel.angle_lo)[i, :dof]), r(np.asarray(skel.angle_hi)[i, :dof]),
+            lo, hi,
             r(np.asarray(skel.length)[i]), r(np.asarray(skel.length_lo)[i]), r(np.asarray(skel.length_hi)[i]),
             r(np.asarray(skel.radius)[i]), r(np.asarray(skel.attach)[i]),
         ))

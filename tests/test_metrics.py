@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 
 import numpy as np
 import pytest
@@ -184,3 +185,12 @@ def test_eval_command_on_two_truth_files(tmp_path, capsys):
         _eval([str(tmp_path / "short.json"), str(tmp_path / "truth.json")])
     with pytest.raises(JaxposeError, match="not found"):
         _eval([str(tmp_path / "nope.json"), str(tmp_path / "truth.json")])
+
+
+def test_mirrored_hinge_legs_are_interchangeable():
+    """The MJCF ant's legs bend about mirrored axes with negated limits: still interchangeable."""
+    pytest.importorskip("mujoco")
+    from jaxpose.metrics import automorphism_group_order
+
+    ant = load_skeleton(os.path.join(os.path.dirname(__file__), "fixtures", "ant.xml"))
+    assert automorphism_group_order(ant) == 24

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 
 def register(sub) -> None:
@@ -104,6 +105,12 @@ def run(args) -> int:
     view = R.render_orbit(skel, pose, args.elevation, args.azimuth, distance, k, floor=args.floor,
                           clutter=args.clutter, sensor=sensor, seed=args.seed)
     seen = int((view.depth > 0).sum())
+    if sensor is not None:
+        clean = int((view.clean > 0).sum())
+        far = float(np.max(view.clean)) if clean else 0.0
+        if far > sensor.max_range and seen < 0.5 * clean:
+            print(f"jaxpose: warning: the subject reaches {far:.1f} m, beyond the sensor's {sensor.max_range:.1f} m "
+                  f"range: only {seen} of {clean} pixels were measured; try a smaller --distance", file=sys.stderr)
     meta = {"pose": args.pose, "seed": args.seed, "elevation_deg": args.elevation, "azimuth_deg": args.azimuth,
             "distance": float(distance), "floor": bool(args.floor), "clutter": int(args.clutter)}
     if args.truth:
