@@ -175,3 +175,24 @@ def test_installed_command_reports_one_line_and_status_2(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and p.stdout == ""
     assert p.stderr == "jaxpose: error: missing.png: depth file not found\n"
+
+
+def test_compilation_cache_folder(tmp_path, monkeypatch):
+    import jax
+
+    from jaxpose.cli import enable_compilation_cache
+
+    before = jax.config.jax_compilation_cache_dir
+    try:
+        monkeypatch.setenv("JAXPOSE_CACHE_DIR", "0")
+        assert enable_compilation_cache() is None
+        target = tmp_path / "a" / "xla"
+        monkeypatch.setenv("JAXPOSE_CACHE_DIR", str(target))
+        assert enable_compilation_cache() == str(target)
+        assert target.is_dir() and jax.config.jax_compilation_cache_dir == str(target)
+        blocker = tmp_path / "file"
+        blocker.write_text("x")
+        monkeypatch.setenv("JAXPOSE_CACHE_DIR", str(blocker / "xla"))  # cannot be created: no cache, no error
+        assert enable_compilation_cache() is None
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
