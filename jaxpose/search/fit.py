@@ -96,7 +96,7 @@ class FitConfig:
     init_pca_fraction: float = 0.5
     init_pca_std: float = 0.02
     scale_window: float = 1.5
-    islands: int = 4
+    islands: int = 8
     staged: float = 0.5
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
 
