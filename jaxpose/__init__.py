@@ -18,6 +18,10 @@ The edges (files): :func:`load_skeleton` (native TOML/JSON, URDF, MJCF), :func:`
 
 __version__ = "0.1.0"
 
+from ._xla_flags import disable_ynn_fusions as _disable_ynn_fusions
+
+_disable_ynn_fusions()  # before anything computes: see jaxpose/_xla_flags.py
+
 from .camera import KINECT_V1, Intrinsics, depth_to_cloud, points_to_cloud, project
 from .errors import ConfigError, DepthError, IntrinsicsError, JaxposeError, SkeletonError
 from .io.depth_file import load_depth, parse_intrinsics

@@ -1,0 +1,61 @@
+"""A workaround for a crash in XLA:CPU, applied when :mod:`jaxpose` is imported.
+
+jaxlib 0.10's CPU backend hands element-wise and reduction fusions to YNNPACK
+(``--xla_cpu_experimental_ynn_fusion_type``).  On the nested batching of the
+search (islands x memetic refinement of the best individuals, e.g. 8 x 8, the
+defaults) one of those fusions segfaults inside YNNPACK's transpose.  Without
+YNNPACK fusions the same programs run correctly, at the same objective throughput
+(``experiments/bench.py`` measures both).
+
+XLA reads ``XLA_FLAGS`` when JAX creates its first backend, so the flag only takes
+effect if jaxpose is imported before JAX computes anything.  A user who sets the
+option in ``XLA_FLAGS`` (to any value) keeps their own setting.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+FLAG = "--xla_cpu_experimental_ynn_fusion_type"
+
+
+def _jaxlib_version() -> tuple[int, ...]:
+    try:
+        import jaxlib
+
+        return tuple(int(p) for p in jaxlib.__version__.split(".")[:2])
+    except Exception:  # noqa: BLE001 - an unknown version: leave the flags alone
+        return (0,)
+
+
+def _backend_started() -> bool:
+    try:
+        from jax._src import xla_bridge
+
+        return bool(getattr(xla_bridge, "_backends", {}))
+    except Exception:  # noqa: BLE001 - private API moved: assume not started
+        return False
+
+
+def disable_ynn_fusions() -> bool:
+    """Add ``FLAG=`` (no YNNPACK fusions) to ``XLA_FLAGS`` unless already set.
+
+    Returns whether the flag is in force for this process's CPU backend.
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    if FLAG in flags:
+        return True
+    if _jaxlib_version() < (0, 10):  # older XLA does not know the flag (and would abort on it)
+        return False
+    if _backend_started():
+        warnings.warn(
+            "jaxpose: JAX's CPU backend started before jaxpose was imported, so XLA's YNNPACK fusions stay on; "
+            "they crash (segfault) on jaxlib 0.10 in the search's refinement step. Import jaxpose first, or set "
+            f"XLA_FLAGS='{FLAG}=' before starting Python.",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        return False
+    os.environ["XLA_FLAGS"] = f"{flags} {FLAG}=".strip()
+    return True
