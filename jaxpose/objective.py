@@ -290,8 +290,12 @@ class Observation(NamedTuple):
 
 
 def observe(cloud: Cloud, config: ObjectiveConfig = ObjectiveConfig()) -> Observation:
-    sigma = cloud_spread(cloud) if config.sigma is None else jnp.asarray(config.sigma, jnp.float32)
-    sigma = sigma * config.sigma_factor
+    """The cloud, its sigma and its free-space map.  sigma is ``config.sigma`` when given
+    (used as it is), else ``cloud_spread(cloud) * config.sigma_factor``."""
+    if config.sigma is None:
+        sigma = cloud_spread(cloud) * config.sigma_factor
+    else:
+        sigma = jnp.asarray(config.sigma, jnp.float32)
     return Observation(cloud, sigma, free_space_map(cloud, config.free_space_grid))
 
 

@@ -284,3 +284,12 @@ def test_data_cost_gradient_matches_autodiff_of_brute_force(N, block):
     gb = jax.grad(brute, argnums=range(5))(*args)
     for a, b in zip(gk, gb):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=2e-4, atol=1e-6)
+
+
+def test_observe_sigma_fixed_or_a_fraction_of_the_spread():
+    cloud = plane_cloud()
+    s = float(cloud_spread(cloud))
+    assert float(observe(cloud, ObjectiveConfig(sigma_factor=0.25)).sigma) == pytest.approx(0.25 * s, rel=1e-6)
+    assert float(observe(cloud, ObjectiveConfig(sigma_factor=1.0)).sigma) == pytest.approx(s, rel=1e-6)
+    # a fixed sigma is used as it is: sigma_factor applies to the cloud's spread only
+    assert float(observe(cloud, ObjectiveConfig(sigma=0.1, sigma_factor=0.25)).sigma) == pytest.approx(0.1)

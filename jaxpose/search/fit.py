@@ -27,7 +27,7 @@ from evosax.algorithms.population_based.base import PopulationBasedAlgorithm
 
 from ..errors import ConfigError
 from ..kinematics import Links, forward_kinematics
-from ..objective import Cloud, ObjectiveConfig, Observation, cloud_centre, observe, population_cost
+from ..objective import Cloud, ObjectiveConfig, Observation, cloud_centre, cloud_spread, observe, population_cost
 from ..skeleton import Bounds, Pose, Skeleton, decode, encode, genome_bounds, genome_layout, rest_pose
 from .baselines import BoundedHillClimbing, evosax_strategy
 from .ga import BranchSwapGA, subtree_masks
@@ -257,7 +257,7 @@ def aligned_root(key, skel: Skeleton, obs: Observation, scale) -> tuple[jax.Arra
 
 def initial_scale(skel: Skeleton, obs: Observation, config: FitConfig) -> jax.Array:
     """The scale at which the rest-pose model spreads like the cloud."""
-    s0 = obs.sigma / config.objective.sigma_factor / model_spread(skel)
+    s0 = cloud_spread(obs.cloud) / model_spread(skel)
     return jnp.clip(s0, skel.scale_lo, skel.scale_hi)
 
 
