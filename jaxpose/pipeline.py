@@ -93,8 +93,12 @@ def fit_depth_file(
     seed: int = 0,
     options: DepthOptions = DepthOptions(),
     progress=None,
+    search_lengths: bool = False,
 ) -> FitOutput:
-    """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth file."""
+    """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth file.
+
+    ``search_lengths``: for a robot file given by path, search its capsule lengths
+    (see :func:`~jaxpose.io.skeleton_file.load_skeleton`)."""
     config.validate()
     options.validate()
     skel_file = None
@@ -102,7 +106,7 @@ def fit_depth_file(
         skel = skeleton
     else:
         skel_file = resolve_skeleton_path(str(skeleton))
-        skel = load_skeleton(skel_file)
+        skel = load_skeleton(skel_file, search_lengths=search_lengths)
     depth, k, cloud = load_observation(depth_path, options)
     result = fit_cloud(cloud, skel, seed, config, progress)
     if not (np.isfinite(float(result.cost)) and np.all(np.isfinite(np.asarray(result.links.end)))):
@@ -124,4 +128,5 @@ def fit_depth_file(
         "sample_seed": options.sample_seed,
     }
     doc = result_document(skel, skel_file, result, config, seed, inputs)
+    doc["skeleton"]["search_lengths"] = bool(search_lengths)
     return FitOutput(skel, result, depth, k, doc)

@@ -244,3 +244,104 @@ def test_bad_files_raise_one_clear_error(tmp_path, text, words):
 def test_missing_file():
     with pytest.raises(SkeletonError, match="not found"):
         load_urdf(os.path.join(FIXTURES, "no_such_robot.urdf"))
+
+
+# --------------------------------------------------------------------------- mesh files
+
+
+def _mesh_urdf(tmp_path, filename, origin='xyz="0.02 0 0.01" rpy="0 0.3 0.5"', scale="0.5 2 1"):
+    p = tmp_path / "robot.urdf"
+    p.write_text(
+        f'<robot name="m"><link name="base"/><link name="tool"><visual><origin {origin}/>'
+        f'<geometry><mesh filename="{filename}" scale="{scale}"/></geometry></visual></link>'
+        '<joint name="j" type="revolute"><parent link="base"/><child link="tool"/><axis xyz="0 0 1"/>'
+        '<limit lower="-1" upper="1"/></joint></robot>'
+    )
+    return str(p)
+
+
+def _box_vertices(size):
+    return np.array([[x, y, z] for x in (0, size[0]) for y in (0, size[1]) for z in (0, size[2])], float)
+
+
+def _write_binary_stl(path, vertices):
+    import struct
+
+    tris = vertices[np.array([[0, 1, 3], [4, 5, 7], [0, 2, 6], [1, 3, 7]])]
+    with open(path, "wb") as f:
+        f.write(b"\0" * 80 + struct.pack("<I", len(tris)))
+        for t in tris:
+            f.write(struct.pack("<3f", 0, 0, 1) + t.astype("<f4").tobytes() + b"\0\0")
+
+
+def _assert_encloses(skel, link, points):
+    """Every point lies in the link's capsule (the independent point-to-segment formula)."""
+    i = skel.index(link)
+    a = np.asarray(skel.seg_start[i], float)
+    d = np.asarray(skel.seg_dir[i], float)
+    L, r = float(skel.length[i]), float(skel.radius[i])
+    t = np.clip((points - a) @ d, 0.0, L)
+    dist = np.linalg.norm(points - (a + t[:, None] * d), axis=1)
+    assert np.all(dist <= r + 1e-5), (dist.max(), r)
+    return L, r
+
+
+@pytest.mark.parametrize("kind", ["obj", "stl-binary", "stl-ascii"])
+def test_mesh_files_are_read_and_enclosed(tmp_path, kind):
+    v = _box_vertices([0.3, 0.05, 0.04])
+    if kind == "obj":
+        (tmp_path / "part.obj").write_text("# part\n" + "".join(f"v {x} {y} {z}\n" for x, y, z in v) + "f 1 2 3\n")
+        name = "part.obj"
+    elif kind == "stl-binary":
+        _write_binary_stl(tmp_path / "part.stl", v)
+        name = "part.stl"
+    else:
+        facets = "".join(f"facet normal 0 0 1\nouter loop\nvertex {a[0]} {a[1]} {a[2]}\nvertex {b[0]} {b[1]} {b[2]}\n"
+                         f"vertex {c[0]} {c[1]} {c[2]}\nendloop\nendfacet\n" for a, b, c in (v[:3], v[3:6], v[5:8]))
+        (tmp_path / "part.stl").write_text(f"solid part\n{facets}endsolid part\n")
+        name = "part.stl"
+    skel = load_urdf(_mesh_urdf(tmp_path, name))
+    # the vertices in the link frame: scale, then the visual origin (URDF rpy = Rz Ry Rx)
+    roll, pitch, yaw = 0.0, 0.3, 0.5
+    cz, sz, cy, sy = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+    R = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]]) @ np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    pts = np.array([0.02, 0, 0.01]) + (v * [0.5, 2.0, 1.0]) @ R.T
+    L, r = _assert_encloses(skel, "tool", pts)
+    # tight: the long side (0.15 m after scaling) is the axis, not a stand-in ball
+    assert 0.05 < L <= 0.15 + 1e-6 and r < 0.1
+
+
+def test_mesh_behind_a_package_url_is_found_beside_the_urdf(tmp_path):
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "part.obj").write_text("v 0 0 0\nv 0.4 0 0\nv 0 0.02 0\n")
+    skel = load_urdf(_mesh_urdf(tmp_path, "package://my_robot/meshes/part.obj", origin='xyz="0 0 0"', scale="1 1 1"))
+    L, _ = _assert_encloses(skel, "tool", np.array([[0, 0, 0], [0.4, 0, 0], [0, 0.02, 0]], float))
+    assert L > 0.3
+
+
+def test_unreadable_mesh_is_one_clear_error(tmp_path):
+    (tmp_path / "bad.obj").write_text("v 0 zero 0\n")
+    with pytest.raises(SkeletonError) as e:
+        load_urdf(_mesh_urdf(tmp_path, "bad.obj"))
+    msg = str(e.value)
+    assert "robot.urdf" in msg and "bad.obj" in msg and "malformed vertex line" in msg and "\n" not in msg
+    (tmp_path / "empty.stl").write_bytes(b"\0" * 84)
+    with pytest.raises(SkeletonError, match="the mesh holds no vertex"):
+        load_urdf(_mesh_urdf(tmp_path, "empty.stl"))
+
+
+def test_unresolvable_or_other_format_mesh_stands_in_as_a_ball(tmp_path):
+    for name in ("package://nowhere/m.stl", "part.dae"):
+        skel = load_urdf(_mesh_urdf(tmp_path, name, origin='xyz="0.02 0 0.01"', scale="0.5 0.5 0.5"))
+        i = skel.index("tool")
+        assert float(skel.length[i]) == 0 and float(skel.radius[i]) == pytest.approx(0.5 * DEFAULT_MESH_RADIUS)
+
+
+def test_load_skeleton_search_lengths_for_robot_files_only(tmp_path):
+    from jaxpose.io.skeleton_file import load_skeleton
+
+    searched = load_skeleton(fixture("arm7"), search_lengths=True)
+    assert sum(n.endswith(".length") for n in genome_layout(searched).names) == 7
+    assert not any(n.endswith(".length") for n in genome_layout(load_skeleton(fixture("arm7"))).names)
+    with pytest.raises(SkeletonError, match="searching lengths is an option for robot files"):
+        load_skeleton("spider", search_lengths=True)

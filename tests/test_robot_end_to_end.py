@@ -123,3 +123,13 @@ def test_mjcf_ant_end_to_end(tmp_path, capsys):
     tree = mjcf_tree(path)  # skips without mujoco
     assert len(tree) == 13
     end_to_end(tmp_path, capsys, path, tree, render_extra=("--distance", "2.5", "--elevation", "40"))
+
+
+def test_search_lengths_flag(tmp_path, capsys):
+    """--search-lengths reaches the importer; on a native file it is one clear error before any search."""
+    npy = tmp_path / "d.npy"
+    np.save(npy, np.full((120, 160), 1.5, np.float32))
+    assert main(["fit", str(npy), "--skeleton", "spider", "--search-lengths", "--out", str(tmp_path / "r.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--search-lengths: only for robot files" in err[0], err
+    assert not (tmp_path / "r.json").exists()

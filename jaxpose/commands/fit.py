@@ -23,6 +23,8 @@ def register(sub) -> None:
     p.add_argument("--depth-scale", type=float, default=0.001, help="metres per PNG unit (default 0.001)")
     p.add_argument("--near", type=float, default=0.3, help="nearest depth kept, metres (default 0.3)")
     p.add_argument("--far", type=float, default=8.0, help="farthest depth kept, metres (default 8)")
+    p.add_argument("--search-lengths", action="store_true",
+                   help="robot files (.urdf, MJCF): also search every link length within +-30%% (default: the model's)")
     p.add_argument("--background", help="background depth image to subtract (same size)")
     p.add_argument("--max-points", type=int, default=1024, help="points sampled from the image (default 1024)")
     p.add_argument("--algorithm", default="ga", help="ga (default), hc, cma_es or another evosax strategy")
@@ -114,6 +116,12 @@ def run(args: argparse.Namespace) -> int:
 
     config = config_from_args(args)
     check_conflicts(args)
+    if args.search_lengths:
+        from ..io.skeleton_file import resolve_skeleton_path
+
+        if os.path.splitext(resolve_skeleton_path(args.skeleton))[1].lower() not in (".urdf", ".xml", ".mjcf"):
+            raise ConfigError(f"--search-lengths: only for robot files (.urdf, MJCF .xml); {args.skeleton} is a "
+                              "native skeleton, whose links set their own length_range")
     check_output_path(args.out, "--out")
     if args.plot:
         check_output_path(args.plot, "--plot")
@@ -124,7 +132,8 @@ def run(args: argparse.Namespace) -> int:
                            max_points=args.max_points)
     bar = ProgressBar(config.generations, quiet=args.quiet)
     try:
-        out = fit_depth_file(args.depth, args.skeleton, config, args.seed, options, progress=bar.update)
+        out = fit_depth_file(args.depth, args.skeleton, config, args.seed, options, progress=bar.update,
+                             search_lengths=args.search_lengths)
     finally:
         bar.close()  # end the progress line, also before an error message or Ctrl-C
     write_json(args.out, out.document)

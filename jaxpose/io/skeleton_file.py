@@ -56,11 +56,14 @@ def resolve_skeleton_path(path: str) -> str:
     return path
 
 
-def load_skeleton(path: str) -> Skeleton:
+def load_skeleton(path: str, search_lengths: bool = False) -> Skeleton:
     """Read a skeleton from a native ``.toml``/``.json`` file, a ``.urdf`` or an MJCF ``.xml``.
 
     A bare name such as ``"spider"`` loads the shipped skeleton of that name.
-    Raises :class:`~jaxpose.errors.SkeletonError` naming the file and the problem.
+    ``search_lengths`` (robot files only) searches every capsule length within
+    +-30 % instead of keeping the model's; a native file declares ``length_range``
+    per link instead.  Raises :class:`~jaxpose.errors.SkeletonError` naming the file
+    and the problem.
     """
     given = str(path)
     path = resolve_skeleton_path(given)
@@ -80,11 +83,14 @@ def load_skeleton(path: str) -> Skeleton:
     if ext == ".urdf":
         from .urdf import load_urdf
 
-        return load_urdf(path)
+        return load_urdf(path, search_lengths=search_lengths)
     if ext in (".xml", ".mjcf"):
         from .mjcf import load_mjcf
 
-        return load_mjcf(path)
+        return load_mjcf(path, search_lengths=search_lengths)
+    if search_lengths:
+        raise SkeletonError(f"{path}: searching lengths is an option for robot files (.urdf, MJCF .xml); "
+                            "a native skeleton file sets each link's length_range instead")
     try:
         with open(path, "rb") as f:
             raw = f.read(MAX_SKELETON_BYTES + 1)

@@ -29,9 +29,14 @@ Geometry.  ``<collision>`` elements are used when a link has any, otherwise its
 * ``capsule`` (a common extension): exact;
 * ``box``: a capsule along its longest axis with the half-diagonal of the two other
   sides as radius and the full long side as segment (it encloses the box);
-* ``mesh``: mesh files are not read.  The mesh is stood in for by a ball of radius
-  :data:`DEFAULT_MESH_RADIUS` times the largest ``scale`` factor at the geometry's
-  origin.  Give the link a ``<collision>`` primitive for a better fit.
+* ``mesh``: a Wavefront ``.obj`` or an STL (binary or ASCII) file, found beside the
+  URDF (a relative path, ``file://``, or ``package://PKG/...`` looked up as ``PKG/...``
+  and as ``...`` in the URDF's folder and its parents), is read: its vertices, scaled
+  by ``scale`` and placed by the geometry's origin, are enclosed like the other
+  shapes.  A mesh that cannot be found or is of another format (e.g. COLLADA
+  ``.dae``) is stood in for by a ball of radius :data:`DEFAULT_MESH_RADIUS` times the
+  largest ``scale`` factor at the geometry's origin; give the link a ``<collision>``
+  primitive for a better fit.  A mesh file that is found but unreadable is an error.
 
 A link with several geometries gets one capsule enclosing all of them; a link with
 none keeps length 0 and radius 0 and only takes part in the kinematics.  Lengths
@@ -240,7 +245,75 @@ def _origin(elem, what, fail):
     return xyz, rpy_matrix(rpy)
 
 
-def _urdf_geometry(link, where, fail) -> list[Shape]:
+MESH_FORMATS = (".obj", ".stl")
+
+
+def find_mesh_file(filename: str, base: str) -> str | None:
+    """The mesh file a URDF ``filename`` names, looked up beside the URDF file in folder
+    ``base`` (see the module docstring), or ``None`` when not found or not a readable format."""
+    if os.path.splitext(filename)[1].lower() not in MESH_FORMATS:
+        return None
+    candidates = []
+    if filename.startswith("package://"):
+        rest = filename[len("package://"):]
+        tail = rest.split("/", 1)[1] if "/" in rest else rest
+        folder = os.path.abspath(base)
+        for _ in range(4):  # the URDF's folder and three above it
+            candidates += [os.path.join(folder, rest), os.path.join(folder, tail)]
+            folder = os.path.dirname(folder)
+    else:
+        name = filename[len("file://"):] if filename.startswith("file://") else filename
+        candidates.append(name if os.path.isabs(name) else os.path.join(base, name))
+    return next((c for c in candidates if os.path.isfile(c)), None)
+
+
+def read_mesh_vertices(path: str) -> np.ndarray:
+    """Vertices ``(n, 3)`` of a Wavefront ``.obj`` or an STL file (binary or ASCII).
+
+    Raises ``ValueError`` for a file that holds no vertex or is malformed.
+    """
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(64 << 20)
+    except OSError as e:
+        raise ValueError(f"cannot read the mesh ({e.strerror or e})") from None
+    ext = os.path.splitext(path)[1].lower()
+    rows = []
+    binary_size = len(raw) >= 84 and len(raw) == 84 + 50 * int.from_bytes(raw[80:84], "little")
+    if ext == ".stl" and (binary_size or not raw[:5].lower().startswith(b"solid")):  # ASCII starts with "solid"
+        if len(raw) < 84:
+            raise ValueError("not an STL file (shorter than its 84-byte header)")
+        n = int.from_bytes(raw[80:84], "little")
+        if len(raw) < 84 + 50 * n:
+            raise ValueError(f"binary STL announces {n} triangles but holds {(len(raw) - 84) // 50}")
+        tri = np.frombuffer(raw, np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]), n, 84)
+        v = tri["v"].reshape(-1, 3).astype(float)
+    else:
+        key = b"v" if ext == ".obj" else b"vertex"
+        for line in raw.splitlines():
+            parts = line.split()
+            if len(parts) >= 4 and parts[0] == key:
+                try:
+                    rows.append([float(x) for x in parts[1:4]])
+                except ValueError:
+                    raise ValueError(f"malformed vertex line {line[:60].decode('utf-8', 'replace')!r}") from None
+        v = np.asarray(rows, float).reshape(-1, 3)
+    if v.shape[0] == 0:
+        raise ValueError("the mesh holds no vertex")
+    if not np.all(np.isfinite(v)):
+        raise ValueError("the mesh has non-finite vertex coordinates")
+    v = np.unique(v, axis=0)
+    if v.shape[0] > 4096:  # only the convex hull matters for an enclosing capsule
+        try:
+            from scipy.spatial import ConvexHull
+
+            v = v[ConvexHull(v).vertices]
+        except Exception:  # noqa: BLE001 - flat or degenerate mesh: keep every vertex
+            pass
+    return v
+
+
+def _urdf_geometry(link, where, fail, base: str = ".") -> list[Shape]:
     elems = link.findall("collision") or link.findall("visual")
     shapes = []
     for k, el in enumerate(elems):
@@ -265,7 +338,15 @@ def _urdf_geometry(link, where, fail) -> list[Shape]:
             shapes.append(box_shape(pos, R, 0.5 * need("size", 3)))
         elif g.tag == "mesh":
             s = _numbers(g.get("scale"), 3, f"{what} <mesh scale>", (1, 1, 1), fail)
-            shapes.append(sphere_shape(pos, DEFAULT_MESH_RADIUS * float(np.max(np.abs(s)))))
+            mesh = find_mesh_file(g.get("filename") or "", base)
+            if mesh is None:
+                shapes.append(sphere_shape(pos, DEFAULT_MESH_RADIUS * float(np.max(np.abs(s)))))
+            else:
+                try:
+                    v = read_mesh_vertices(mesh)
+                except ValueError as e:
+                    fail(f"{what} <mesh filename={g.get('filename')!r}>: {mesh}: {e}")
+                shapes.append(points_shape(pos + (v * np.asarray(s, float)) @ np.asarray(R, float).T))
         else:
             fail(f"{what}: unsupported geometry <{g.tag}> (expected box, cylinder, sphere, capsule or mesh)")
     return shapes
@@ -355,7 +436,8 @@ def _urdf_specs(root, path, search_lengths):
 
     specs = []
     for name, el in links.items():
-        start, d, length, radius = enclosing_capsule(_urdf_geometry(el, f"link {name!r}", fail))
+        start, d, length, radius = enclosing_capsule(
+            _urdf_geometry(el, f"link {name!r}", fail, os.path.dirname(os.path.abspath(path))))
         geom = dict(seg_start=tuple(start), seg_dir=tuple(d), length=length, radius=radius,
                     length_range=length_range(length, search_lengths))
         if name in joint_of_child:
