@@ -250,6 +250,25 @@ def test_mutate_branch_mode_touches_one_subtree_only():
         assert any(not (changed & ~m).any() for m in masks), "branch mutation left its subtree"
 
 
+def test_branch_reset_redraws_one_whole_subtree_uniformly():
+    masks = np.asarray(subtree_masks(skeleton()))
+    x = np.full(masks.shape[1], 0.5, np.float32)
+    keys = jax.random.split(jax.random.key(3), 400)
+    # no Gaussian mutation (rates 0): only the reset can move a gene
+    rows = np.asarray(jax.vmap(lambda k: mutate(k, x, 0.1, 0.0, 0.0, jnp.asarray(masks), 1.0))(keys))
+    moved = rows != 0.5
+    for row in moved:
+        assert any((row == m).all() for m in masks), "a reset must redraw exactly one subtree's genes"
+    vals = rows[moved]
+    assert vals.min() >= 0.0 and vals.max() <= 1.0
+    # uniform on [0, 1]: mean 1/2, variance 1/12, both tails reached
+    assert abs(vals.mean() - 0.5) < 0.03 and abs(vals.var() - 1 / 12) < 0.01
+    assert vals.min() < 0.02 and vals.max() > 0.98
+    # reset_rate 0 (and no other mutation) leaves the child untouched
+    same = np.asarray(jax.vmap(lambda k: mutate(k, x, 0.1, 0.0, 0.0, jnp.asarray(masks), 0.0))(keys[:20]))
+    np.testing.assert_array_equal(same, np.broadcast_to(x, same.shape))
+
+
 def test_mutate_rate_zero_changes_nothing():
     x = np.asarray(jax.random.uniform(jax.random.key(2), (genome_layout(skeleton()).size,)))
     y = _mutate_many(x, 0.5, 0.0, 0.0)

@@ -50,6 +50,10 @@ class FitConfig:
         crossover_rate: probability that a child takes a subtree from a second parent.
         mutation_rate: per-gene mutation probability.
         branch_mutation_rate: probability that a child mutates one whole subtree instead.
+        branch_reset_rate: probability that a child then draws every gene of one random
+            subtree anew (uniform within its bounds): a jump that gets a limb out of a
+            local optimum at any step size (7 humanoid tuning images: symmetric PCP
+            0.53 -> 0.70, final cost 0.096 -> 0.071, the truth's 0.060).
         elite_ratio: fraction of the population that may become parents.
         memetic_every: every this many generations, refine the ``memetic_top`` best
             individuals by ``memetic_steps`` Adam steps (0: never).
@@ -85,6 +89,7 @@ class FitConfig:
     crossover_rate: float = 0.5
     mutation_rate: float = 0.15
     branch_mutation_rate: float = 0.3
+    branch_reset_rate: float = 0.1
     elite_ratio: float = 0.25
     memetic_every: int = 25
     memetic_top: int = 8
@@ -111,7 +116,7 @@ class FitConfig:
             raise ConfigError(f"chunk must be >= 1, got {self.chunk}")
         if self.algorithm not in ("ga", "hc"):
             evosax_strategy(self.algorithm)
-        for name in ("crossover_rate", "mutation_rate", "branch_mutation_rate"):
+        for name in ("crossover_rate", "mutation_rate", "branch_mutation_rate", "branch_reset_rate"):
             v = getattr(self, name)
             if not 0.0 <= v <= 1.0:
                 raise ConfigError(f"{name} must lie in [0, 1], got {v}")
@@ -181,6 +186,7 @@ def _make_algorithm(skel: Skeleton, config: FitConfig):
             crossover_rate=config.crossover_rate,
             mutation_rate=config.mutation_rate,
             branch_mutation_rate=config.branch_mutation_rate,
+            branch_reset_rate=config.branch_reset_rate,
         )
         return algo, params
     if config.algorithm == "hc":

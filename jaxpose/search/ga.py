@@ -12,7 +12,9 @@ in ``[0, 1]``).  One generation:
 3. *Mutation*: Gaussian noise of standard deviation ``std`` (a decaying schedule)
    on each gene with probability ``mutation_rate``, or, with probability
    ``branch_mutation_rate``, on every gene of one random subtree; results are
-   clipped to ``[0, 1]``.
+   clipped to ``[0, 1]``.  Then, with probability ``branch_reset_rate``, every gene
+   of one random subtree is drawn anew, uniformly in ``[0, 1]`` (a jump of a whole
+   limb, whatever the step size).
 4. *Elitism* (in ``tell``): the next population is the best ``population_size``
    of the ``num_keep`` best parents and all children, so the best individual is
    never lost.
@@ -50,6 +52,7 @@ class Params(BaseParams):
     crossover_rate: float
     mutation_rate: float
     branch_mutation_rate: float
+    branch_reset_rate: float
 
 
 def subtree_masks(skel: Skeleton) -> np.ndarray:
@@ -66,13 +69,20 @@ def branch_swap(key: jax.Array, parent_1: Solution, parent_2: Solution, masks: j
     return jnp.where(mask, parent_2, parent_1)
 
 
-def mutate(key: jax.Array, x: Solution, std, rate, branch_rate, masks: jax.Array) -> Solution:
-    """Gaussian mutation of random genes or of one random subtree, clipped to ``[0, 1]``."""
-    k_gene, k_noise, k_mode, k_which = jax.random.split(key, 4)
+def mutate(key: jax.Array, x: Solution, std, rate, branch_rate, masks: jax.Array, reset_rate=0.0) -> Solution:
+    """Gaussian mutation of random genes or of one random subtree, clipped to ``[0, 1]``.
+
+    With probability ``reset_rate`` the child instead draws every gene of one random
+    subtree anew, uniformly in ``[0, 1]``: a jump that moves a whole limb out of a
+    local optimum (e.g. an arm hidden inside the trunk) at any step size.
+    """
+    k_gene, k_noise, k_mode, k_which, k_reset, k_uni = jax.random.split(key, 6)
     gene_mask = jax.random.uniform(k_gene, x.shape) < rate
     branch_mask = masks[jax.random.randint(k_which, (), 0, masks.shape[0])]
     mask = jnp.where(jax.random.uniform(k_mode) < branch_rate, branch_mask, gene_mask)
-    return jnp.clip(x + mask * std * jax.random.normal(k_noise, x.shape), 0.0, 1.0)
+    y = jnp.clip(x + mask * std * jax.random.normal(k_noise, x.shape), 0.0, 1.0)
+    reset = branch_mask & (jax.random.uniform(k_reset) < reset_rate)
+    return jnp.where(reset, jax.random.uniform(k_uni, x.shape), y)
 
 
 class BranchSwapGA(PopulationBasedAlgorithm):
@@ -96,7 +106,7 @@ class BranchSwapGA(PopulationBasedAlgorithm):
 
     @property
     def _default_params(self) -> Params:
-        return Params(crossover_rate=0.5, mutation_rate=0.15, branch_mutation_rate=0.3)
+        return Params(crossover_rate=0.5, mutation_rate=0.15, branch_mutation_rate=0.3, branch_reset_rate=0.0)
 
     def _init(self, key: jax.Array, params: Params) -> State:
         return State(
@@ -118,9 +128,9 @@ class BranchSwapGA(PopulationBasedAlgorithm):
         children = jax.vmap(branch_swap, in_axes=(0, 0, 0, None, None))(
             jax.random.split(kc, self.population_size), elites[i1], elites[i2], masks, params.crossover_rate
         )
-        children = jax.vmap(mutate, in_axes=(0, 0, None, None, None, None))(
+        children = jax.vmap(mutate, in_axes=(0, 0, None, None, None, None, None))(
             jax.random.split(km, self.population_size), children, state.std, params.mutation_rate,
-            params.branch_mutation_rate, masks,
+            params.branch_mutation_rate, masks, params.branch_reset_rate,
         )
         return children, state
 
