@@ -6,3 +6,18 @@ import os
 # depend on (or fill) a user's cache, so it is off here.  tests/test_cli.py turns
 # it on explicitly where it is tested.
 os.environ["JAXPOSE_CACHE_DIR"] = "0"
+
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """A 160x120 depth PNG of the spider in a random pose, its truth file and its intrinsics."""
+    from jaxpose.cli import main
+
+    d = tmp_path_factory.mktemp("scene")
+    rc = main(["render", "--skeleton", "spider", "--size", "160x120", "--seed", "3",
+               "--out", str(d / "depth.png"), "--truth", str(d / "truth.json")])
+    assert rc == 0
+    return d

@@ -36,14 +36,6 @@ def _run(capsys, *argv):
     return out, err
 
 
-@pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    """A 160x120 depth PNG of the spider in a random pose, its truth file and its intrinsics."""
-    d = tmp_path_factory.mktemp("cli")
-    rc = main(["render", "--skeleton", "spider", "--size", "160x120", "--seed", "3",
-               "--out", str(d / "depth.png"), "--truth", str(d / "truth.json")])
-    assert rc == 0
-    return d
 
 
 @pytest.fixture(scope="module")

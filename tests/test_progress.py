@@ -152,13 +152,6 @@ def test_default_stream_is_stderr(monkeypatch, clock):
 # --------------------------------------------------------------------------- through the command line
 
 
-@pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    d = tmp_path_factory.mktemp("progress")
-    rc = main(["render", "--skeleton", "spider", "--size", "160x120", "--seed", "3",
-               "--out", str(d / "depth.png"), "--truth", str(d / "truth.json")])
-    assert rc == 0
-    return d
 
 
 def test_quiet_fit_prints_nothing(scene, capsys, monkeypatch):
