@@ -117,9 +117,9 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     check_conflicts(args)
     if args.search_lengths:
-        from ..io.skeleton_file import resolve_skeleton_path
+        from ..io.skeleton_file import ROBOT_EXTENSIONS, resolve_skeleton_path
 
-        if os.path.splitext(resolve_skeleton_path(args.skeleton))[1].lower() not in (".urdf", ".xml", ".mjcf"):
+        if os.path.splitext(resolve_skeleton_path(args.skeleton))[1].lower() not in ROBOT_EXTENSIONS:
             raise ConfigError(f"--search-lengths: only for robot files (.urdf, MJCF .xml); {args.skeleton} is a "
                               "native skeleton, whose links set their own length_range")
     check_output_path(args.out, "--out")

@@ -56,6 +56,11 @@ def resolve_skeleton_path(path: str) -> str:
     return path
 
 
+URDF_EXTENSIONS = (".urdf",)
+MJCF_EXTENSIONS = (".xml", ".mjcf")
+ROBOT_EXTENSIONS = URDF_EXTENSIONS + MJCF_EXTENSIONS  # robot files: lengths fixed unless searched
+
+
 def load_skeleton(path: str, search_lengths: bool = False) -> Skeleton:
     """Read a skeleton from a native ``.toml``/``.json`` file, a ``.urdf`` or an MJCF ``.xml``.
 
@@ -80,11 +85,11 @@ def load_skeleton(path: str, search_lengths: bool = False) -> Skeleton:
     if size > MAX_SKELETON_BYTES:
         raise SkeletonError(f"{path}: file is {size} bytes, more than the {MAX_SKELETON_BYTES} allowed for a skeleton")
     ext = os.path.splitext(path)[1].lower()
-    if ext == ".urdf":
+    if ext in URDF_EXTENSIONS:
         from .urdf import load_urdf
 
         return load_urdf(path, search_lengths=search_lengths)
-    if ext in (".xml", ".mjcf"):
+    if ext in MJCF_EXTENSIONS:
         from .mjcf import load_mjcf
 
         return load_mjcf(path, search_lengths=search_lengths)
