@@ -59,7 +59,7 @@ class ObjectiveConfig:
     free_space_weight: float = 1.0
     free_space_samples: int = 6
     free_space_grid: int = 40
-    block: int = 1024  # points per streamed block in the kernel
+    block: int = 256  # points per streamed block in the kernel
 
 
 def _present(cloud: Cloud):
@@ -92,28 +92,52 @@ def point_capsule_distance(points, start, end, radius):
     return jnp.abs(jnp.sqrt(jnp.maximum(jnp.sum(diff * diff, -1), _TINY_D2)) - radius)
 
 
-def _link_scan(bx, by, bz, start, ab, inv, a_ab, radius):
+# Links per unrolled group of the nearest-capsule loop.  Within a group the running
+# minimum stays in registers (one fused loop over the block's elements); groups are
+# scanned, so the program size stays bounded for long chains.  On a 2-core CPU
+# (P=1024, N=2048, L=17) this was 2.8x faster than a scan over single links, whose
+# running minimum went through memory at every link.
+LINK_GROUP = 24
+
+
+def _link_scan(bx, by, bz, start, ab, inv, a_ab, radius, with_arg: bool = True):
     """Nearest capsule of every (individual, point) of one block: ``(d, index)``, both ``(P, B)``.
 
-    A forward-only scan over links with a running minimum; ``start, ab (L, P, 3)``,
-    ``inv, a_ab, radius (L, P)`` are link-major.
+    ``start, ab (L, P, 3)``, ``inv, a_ab, radius (L, P)`` are link-major.  Links are
+    visited in order with a running minimum (a strictly closer link wins, so ties
+    keep the first).  ``with_arg=False`` skips the index (returned as ``None``).
     """
+    L = start.shape[0]
+    G = min(L, LINK_GROUP)
+    n_groups = -(-L // G)
+    pad = n_groups * G - L
+    if pad:  # repeat the last link: never strictly closer than itself, so nothing changes
+        start, ab, inv, a_ab, radius = (jnp.concatenate([x, jnp.repeat(x[-1:], pad, 0)]) for x in
+                                        (start, ab, inv, a_ab, radius))
+
+    def group(carry, lk):
+        best, arg, k0 = carry
+        a, u, iv, c, r = lk  # (G, P, 3), (G, P, 3), (G, P), (G, P), (G, P)
+        for j in range(G):
+            ux, uy, uz = u[j, :, 0:1], u[j, :, 1:2], u[j, :, 2:3]
+            t = jnp.clip((bx * ux + by * uy + bz * uz - c[j, :, None]) * iv[j, :, None], 0.0, 1.0)
+            dx = bx - a[j, :, 0:1] - t * ux
+            dy = by - a[j, :, 1:2] - t * uy
+            dz = bz - a[j, :, 2:3] - t * uz
+            d = jnp.abs(jnp.sqrt(jnp.maximum(dx * dx + dy * dy + dz * dz, _TINY_D2)) - r[j, :, None])
+            closer = d < best
+            best = jnp.where(closer, d, best)
+            if with_arg:
+                arg = jnp.where(closer, k0 + j, arg)
+        return (best, arg, k0 + G), None
+
     P, B = start.shape[1], bx.shape[0]
-
-    def link(carry, lk):
-        best, arg, k = carry
-        a, u, iv, c, r = lk  # (P, 3), (P, 3), (P,), (P,), (P,)
-        ux, uy, uz = u[:, 0:1], u[:, 1:2], u[:, 2:3]
-        t = jnp.clip((bx * ux + by * uy + bz * uz - c[:, None]) * iv[:, None], 0.0, 1.0)
-        dx = bx - a[:, 0:1] - t * ux
-        dy = by - a[:, 1:2] - t * uy
-        dz = bz - a[:, 2:3] - t * uz
-        d = jnp.abs(jnp.sqrt(jnp.maximum(dx * dx + dy * dy + dz * dz, _TINY_D2)) - r[:, None])
-        closer = d < best
-        return (jnp.where(closer, d, best), jnp.where(closer, k, arg), k + 1), None
-
-    init = (jnp.full((P, B), jnp.inf, bx.dtype), jnp.zeros((P, B), jnp.int32), jnp.int32(0))
-    (best, arg, _), _ = jax.lax.scan(link, init, (start, ab, inv, a_ab, radius))
+    init = (jnp.full((P, B), jnp.inf, bx.dtype), jnp.zeros((P, B), jnp.int32) if with_arg else None, jnp.int32(0))
+    grouped = tuple(x.reshape((n_groups, G) + x.shape[1:]) for x in (start, ab, inv, a_ab, radius))
+    if n_groups == 1:
+        (best, arg, _), _ = group(init, tuple(x[0] for x in grouped))
+    else:
+        (best, arg, _), _ = jax.lax.scan(group, init, grouped)
     return best, arg
 
 
@@ -147,7 +171,7 @@ def _blocked_sum(px, py, pz, wb, start, end, radius, inv_sigma):
 
     def block(total, xs):
         bx, by, bz, bw = xs
-        best, _ = _link_scan(bx, by, bz, *links)
+        best, _ = _link_scan(bx, by, bz, *links, with_arg=False)
         return total + jnp.sum(bw * jnp.log1p(best * inv_sigma), -1), None
 
     total, _ = jax.lax.scan(block, jnp.zeros(start.shape[0], start.dtype), (px, py, pz, wb))
@@ -190,11 +214,11 @@ def _blocked_sum_bwd(res, g):
 _blocked_sum.defvjp(_blocked_sum_fwd, _blocked_sum_bwd)
 
 
-def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = 1024) -> jax.Array:
+def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = 256) -> jax.Array:
     """The paper's data term for a population: ``start, end (P, L, 3)``, ``radius (P, L)``.
 
-    Streams over blocks of points (outer scan) and over links (inner scan) with a
-    running minimum, on separate coordinate arrays, so memory is
+    Streams over blocks of points (outer scan) and over links (unrolled groups of
+    :data:`LINK_GROUP`) with a running minimum, on separate coordinate arrays, so memory is
     ``O(P * L + P * block)``: no ``P x N x L`` array is ever formed.  Returns ``(P,)``.
     Reverse-mode derivatives (custom VJP) flow through each point's nearest capsule
     only, rescanning instead of storing per-link residuals.

@@ -54,6 +54,8 @@ CASES = [  # N, L, block, radii: N = 1, N a multiple of the block, N not a multi
     (101, 4, 16, "mixed"),
     (37, 8, 1024, "pos"),
     (300, 2, 128, "zero"),
+    (40, 24, 16, "mixed"),  # exactly one unrolled link group (LINK_GROUP)
+    (45, 53, 32, "pos"),  # several link groups, the last one padded
 ]
 
 
@@ -257,14 +259,14 @@ def test_a_model_lying_on_the_plane_beats_one_floating_in_front(plane_obs):
 # --------------------------------------------------------------------------- gradient (custom VJP)
 
 
-@pytest.mark.parametrize("N,block", [(37, 16), (256, 1024)])
-def test_data_cost_gradient_matches_autodiff_of_brute_force(N, block):
+@pytest.mark.parametrize("N,block,L", [(37, 16, 5), (256, 64, 53)])
+def test_data_cost_gradient_matches_autodiff_of_brute_force(N, block, L):
     """The kernel's hand-written reverse mode (nearest capsule only) equals plain
     autodiff of the brute-force (N, L) form, for start, end, radius, sigma and points."""
     from jaxpose.objective import point_capsule_distance
 
     rng = np.random.default_rng(3)
-    P, L = 3, 5
+    P = 3
     pts = f32(rng.normal(size=(N, 3)) * 0.3)
     w = f32(rng.uniform(0.2, 1.0, N))
     start = f32(rng.normal(size=(P, L, 3)) * 0.3)
@@ -293,3 +295,10 @@ def test_observe_sigma_fixed_or_a_fraction_of_the_spread():
     assert float(observe(cloud, ObjectiveConfig(sigma_factor=1.0)).sigma) == pytest.approx(s, rel=1e-6)
     # a fixed sigma is used as it is: sigma_factor applies to the cloud's spread only
     assert float(observe(cloud, ObjectiveConfig(sigma=0.1, sigma_factor=0.25)).sigma) == pytest.approx(0.1)
+
+
+def test_the_link_group_cases_above_cover_one_and_several_groups():
+    from jaxpose.objective import LINK_GROUP
+
+    Ls = {L for _, L, _, _ in CASES}
+    assert LINK_GROUP in Ls and any(L > LINK_GROUP and L % LINK_GROUP for L in Ls)
