@@ -222,10 +222,24 @@ def _model_samples(skel: Skeleton) -> jax.Array:
     return (links.start[None] + t * (links.end - links.start)[None]).reshape(-1, 3)
 
 
+class RestModel(NamedTuple):
+    """The rest-pose model's shape at scale 1: centroid, principal axes, RMS spread."""
+
+    centre: jax.Array  # (3,)
+    axes: jax.Array  # (3, 3) columns by decreasing variance
+    spread: jax.Array  # ()
+
+
+def rest_model(skel: Skeleton) -> RestModel:
+    """:class:`RestModel` of ``skel`` (one forward-kinematics pass of the rest pose)."""
+    pts = _model_samples(skel)
+    c, axes = principal_axes(pts, jnp.ones(pts.shape[0]))
+    return RestModel(c, axes, jnp.sqrt(jnp.mean(jnp.sum((pts - c) ** 2, -1)) + 1e-12))
+
+
 def model_spread(skel: Skeleton) -> jax.Array:
     """RMS distance of the rest-pose capsule axes (scale 1) from their centroid."""
-    pts = _model_samples(skel)
-    return jnp.sqrt(jnp.mean(jnp.sum((pts - pts.mean(0)) ** 2, -1)) + 1e-12)
+    return rest_model(skel).spread
 
 
 def principal_axes(points: jax.Array, weights: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -244,14 +258,16 @@ def matrix_rpy(R: jax.Array) -> jax.Array:
     return jnp.stack([jnp.arctan2(R[2, 1], R[2, 2]), pitch, jnp.arctan2(R[1, 0], R[0, 0])])
 
 
-def aligned_root(key, skel: Skeleton, obs: Observation, scale) -> tuple[jax.Array, jax.Array]:
-    """A root pose that aligns the rest-pose model's principal axes with the cloud's.
+def aligned_root(key, skel: Skeleton, obs: Observation, scale, rest: RestModel | None = None):
+    """A root pose ``(translation, rpy)`` that aligns the rest-pose model's principal
+    axes with the cloud's.
 
     The sign of each axis is ambiguous: one of the four proper rotations is picked
     with ``key``.  The model's centroid lands half a mean link radius behind the
     cloud's centroid (the cloud only covers the surface facing the camera).
+    ``rest`` (:func:`rest_model`) may be passed to skip recomputing it.
     """
-    m_c, M = principal_axes(_model_samples(skel), jnp.ones(_model_samples(skel).shape[0]))
+    m_c, M = (rest or rest_model(skel))[:2]
     c_c, C = principal_axes(obs.cloud.points, obs.cloud.weights)
     s12 = jnp.where(jax.random.bernoulli(key, 0.5, (2,)), 1.0, -1.0)
     s3 = s12[0] * s12[1] * jnp.sign(jnp.linalg.det(C) * jnp.linalg.det(M))
@@ -261,20 +277,20 @@ def aligned_root(key, skel: Skeleton, obs: Observation, scale) -> tuple[jax.Arra
     return centre - scale * R @ m_c, matrix_rpy(R)
 
 
-def initial_scale(skel: Skeleton, obs: Observation, config: FitConfig) -> jax.Array:
+def initial_scale(skel: Skeleton, obs: Observation, config: FitConfig, rest: RestModel | None = None) -> jax.Array:
     """The scale at which the rest-pose model spreads like the cloud."""
-    s0 = cloud_spread(obs.cloud) / model_spread(skel)
+    s0 = cloud_spread(obs.cloud) / (rest or rest_model(skel)).spread
     return jnp.clip(s0, skel.scale_lo, skel.scale_hi)
 
 
-def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig) -> Bounds:
+def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig, rest: RestModel | None = None) -> Bounds:
     """Gene ranges for this cloud: root within the cloud's extent, scale near :func:`initial_scale`."""
     centre = cloud_centre(obs.cloud)
     d = jnp.sqrt(jnp.sum((obs.cloud.points - centre) ** 2, -1))
     extent = jnp.maximum(jnp.max(jnp.where(obs.cloud.weights > 0, d, 0.0)), 1e-3)
     bounds = genome_bounds(skel, centre, extent)
     if config.scale_window:
-        s0 = initial_scale(skel, obs, config)
+        s0 = initial_scale(skel, obs, config, rest)
         i = genome_layout(skel).names.index("scale")
         lo = jnp.maximum(skel.scale_lo, s0 / config.scale_window)
         hi = jnp.maximum(jnp.minimum(skel.scale_hi, s0 * config.scale_window), lo)
@@ -282,11 +298,13 @@ def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig) -> Bounds
     return bounds
 
 
-def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, config: FitConfig) -> jax.Array:
+def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, config: FitConfig,
+                       rest: RestModel | None = None) -> jax.Array:
     """Data-driven initial genomes: root near the cloud's centre, scale from the
     cloud's spread against the model's, orientation and joint angles uniform within
     limits, lengths near their rest values.  A fraction ``init_pca_fraction`` gets a
     root aligned with the cloud's principal axes instead (:func:`aligned_root`)."""
+    rest = rest or rest_model(skel)
     layout = genome_layout(skel)
     P, D = config.population, layout.size
     k_u, k_t, k_s, k_l, k_a, k_n = jax.random.split(key, 6)
@@ -296,7 +314,7 @@ def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, co
     scale_i = names.index("scale")
     is_len = np.array([n.endswith(".length") for n in names])
     g = jnp.where(root_t, 0.5 + config.init_root_std * jax.random.normal(k_t, (P, D)), g)
-    s0 = initial_scale(skel, obs, config)
+    s0 = initial_scale(skel, obs, config, rest)
     s_lo, s_hi = bounds.lo[scale_i], bounds.hi[scale_i]
     s_gene = (s0 * jnp.exp(0.15 * jax.random.normal(k_s, (P,))) - s_lo) / jnp.maximum(s_hi - s_lo, 1e-9)
     g = g.at[:, scale_i].set(s_gene)
@@ -304,7 +322,7 @@ def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, co
     g = jnp.where(is_len, rest_g + 0.1 * jax.random.normal(k_l, (P, D)), g)
     n_pca = int(round(config.init_pca_fraction * P))
     if n_pca > 0:
-        t, rpy = jax.vmap(lambda k: aligned_root(k, skel, obs, s0))(jax.random.split(k_a, n_pca))
+        t, rpy = jax.vmap(lambda k: aligned_root(k, skel, obs, s0, rest))(jax.random.split(k_a, n_pca))
         span = jnp.maximum(bounds.hi[:6] - bounds.lo[:6], 1e-9)
         root_g = (jnp.concatenate([t, rpy], 1) - bounds.lo[:6]) / span
         root_g = root_g + config.init_pca_std * jax.random.normal(k_n, root_g.shape)
@@ -340,10 +358,11 @@ def _lock(skel: Skeleton, config: FitConfig, bounds: Bounds, generation, genomes
 
 def _search_init1(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> SearchState:
     obs = observe(cloud, config.objective)
-    bounds = search_bounds(skel, obs, config)
+    rest = rest_model(skel)
+    bounds = search_bounds(skel, obs, config, rest)
     algo, params = _make_algorithm(skel, config)
     k_pop, k_init, k_run = jax.random.split(key, 3)
-    pop0 = _lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config))
+    pop0 = _lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config, rest))
     fit0 = _population_cost_fn(skel, obs, bounds, config)(pop0)
     if isinstance(algo, PopulationBasedAlgorithm):  # the GA, PSO, DE, evosax's SimpleGA, ...
         state = algo.init(k_init, pop0, fit0, params)
