@@ -22,6 +22,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python experiments/bench.py
+	$(BIN)/python experiments/point_budget.py
 
 data: $(STAMP)
 	$(BIN)/python experiments/make_data.py
