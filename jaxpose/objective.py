@@ -214,7 +214,7 @@ def _blocked_sum_bwd(res, g):
 _blocked_sum.defvjp(_blocked_sum_fwd, _blocked_sum_bwd)
 
 
-def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = 256) -> jax.Array:
+def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = ObjectiveConfig.block) -> jax.Array:
     """The paper's data term for a population: ``start, end (P, L, 3)``, ``radius (P, L)``.
 
     Streams over blocks of points (outer scan) and over links (unrolled groups of

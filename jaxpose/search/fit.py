@@ -237,11 +237,6 @@ def rest_model(skel: Skeleton) -> RestModel:
     return RestModel(c, axes, jnp.sqrt(jnp.mean(jnp.sum((pts - c) ** 2, -1)) + 1e-12))
 
 
-def model_spread(skel: Skeleton) -> jax.Array:
-    """RMS distance of the rest-pose capsule axes (scale 1) from their centroid."""
-    return rest_model(skel).spread
-
-
 def principal_axes(points: jax.Array, weights: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Weighted centroid and principal axes (columns, by decreasing variance) of points."""
     wsum = jnp.maximum(jnp.sum(weights), 1e-12)
