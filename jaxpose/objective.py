@@ -164,36 +164,42 @@ def _prepare(start, end, radius):
     return jnp.moveaxis(start, -2, 0), jnp.moveaxis(ab, -2, 0), inv.T, a_ab.T, jnp.moveaxis(radius, -1, 0)
 
 
-@jax.custom_vjp
-def _blocked_sum(px, py, pz, wb, start, end, radius, inv_sigma):
-    """``(P,)``: sum over blocks of :func:`_point_terms` with each point's nearest capsule."""
+def _blocked_scan(px, py, pz, wb, start, end, radius, inv_sigma, with_arg: bool):
+    """Sum over blocks of ``w ln(1 + d / sigma)`` with each point's nearest capsule:
+    ``(P,)``, and the nearest capsules' indices ``(blocks, P, B)`` (``None`` unless
+    ``with_arg``)."""
     links = _prepare(start, end, radius)
 
     def block(total, xs):
         bx, by, bz, bw = xs
-        best, _ = _link_scan(bx, by, bz, *links, with_arg=False)
-        return total + jnp.sum(bw * jnp.log1p(best * inv_sigma), -1), None
+        best, arg = _link_scan(bx, by, bz, *links, with_arg=with_arg)
+        return total + jnp.sum(bw * jnp.log1p(best * inv_sigma), -1), arg
 
-    total, _ = jax.lax.scan(block, jnp.zeros(start.shape[0], start.dtype), (px, py, pz, wb))
-    return total
+    return jax.lax.scan(block, jnp.zeros(start.shape[0], start.dtype), (px, py, pz, wb))
+
+
+@jax.custom_vjp
+def _blocked_sum(px, py, pz, wb, start, end, radius, inv_sigma):
+    """``(P,)``: sum over blocks of :func:`_point_terms` with each point's nearest capsule."""
+    return _blocked_scan(px, py, pz, wb, start, end, radius, inv_sigma, with_arg=False)[0]
 
 
 def _blocked_sum_fwd(px, py, pz, wb, start, end, radius, inv_sigma):
-    return _blocked_sum(px, py, pz, wb, start, end, radius, inv_sigma), (px, py, pz, wb, start, end, radius, inv_sigma)
+    """The value, keeping every point's nearest capsule (``P x N`` indices, not ``P x N x L``)."""
+    total, arg = _blocked_scan(px, py, pz, wb, start, end, radius, inv_sigma, with_arg=True)
+    return total, (px, py, pz, wb, start, end, radius, inv_sigma, arg)
 
 
 def _blocked_sum_bwd(res, g):
-    """Reverse mode through the nearest capsule only: rescan each block for the
-    argmin (forward-only, no stored residuals), gather that capsule per point,
-    differentiate :func:`_point_terms`, and scatter back with a one-hot product."""
-    px, py, pz, wb, start, end, radius, inv_sigma = res
-    links = _prepare(start, end, radius)
+    """Reverse mode through the nearest capsule only: gather that capsule per point
+    (found by the forward pass), differentiate :func:`_point_terms`, and scatter back
+    with a one-hot product."""
+    px, py, pz, wb, start, end, radius, inv_sigma, args = res
     L = start.shape[1]
     take = jax.vmap(lambda x, i: x[i])  # (P, L, ...) gathered by (P, B) indices
 
     def block(acc, xs):
-        bx, by, bz, bw = xs
-        _, arg = _link_scan(bx, by, bz, *links)
+        bx, by, bz, bw, arg = xs
         a, b, r = take(start, arg), take(end, arg), take(radius, arg)
         _, vjp = jax.vjp(_point_terms, bx, by, bz, bw, a, b, r, inv_sigma)
         gx, gy, gz, gw, ga, gb, gr, gs = vjp(g)
@@ -207,7 +213,7 @@ def _blocked_sum_bwd(res, g):
         return acc, (gx, gy, gz, gw)
 
     zero = (jnp.zeros_like(start), jnp.zeros_like(end), jnp.zeros_like(radius), jnp.zeros_like(inv_sigma))
-    (g_start, g_end, g_radius, g_inv), (gx, gy, gz, gw) = jax.lax.scan(block, zero, (px, py, pz, wb))
+    (g_start, g_end, g_radius, g_inv), (gx, gy, gz, gw) = jax.lax.scan(block, zero, (px, py, pz, wb, args))
     return gx, gy, gz, gw, g_start, g_end, g_radius, g_inv
 
 
@@ -221,7 +227,7 @@ def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = ObjectiveCon
     :data:`LINK_GROUP`) with a running minimum, on separate coordinate arrays, so memory is
     ``O(P * L + P * block)``: no ``P x N x L`` array is ever formed.  Returns ``(P,)``.
     Reverse-mode derivatives (custom VJP) flow through each point's nearest capsule
-    only, rescanning instead of storing per-link residuals.
+    only: the forward pass keeps its index (``P x N`` integers), never per-link residuals.
     """
     pts, w = _present(cloud)
     N = pts.shape[0]

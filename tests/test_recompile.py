@@ -1,10 +1,12 @@
 """No recompilation between generations, or between images of the same padded size.
 
-The fit is compiled in three pieces (``search_init``, ``search_epoch``,
-``search_finish``; see :class:`jaxpose.search.Fitter`).  A second cloud with the
-same ``max_points`` (any number of valid points) and the same config must reuse
-all of them, and the epoch function must be compiled once for all the epochs of
-a fit.  Compilations are counted with a ``jax.monitoring`` listener on XLA's
+The fit is compiled in pieces (``search_init``, ``search_generations``, the
+refinement ``refine_top`` shared by the memetic step and the final polish,
+``memetic_apply``, ``search_result``; see :class:`jaxpose.search.Fitter`).  A
+second cloud with the same ``max_points`` (any number of valid points) and the
+same config must reuse all of them, the generations must be compiled once for all
+the epochs of a fit, and the refinement once for the memetic steps and the final
+one when they refine as many candidates.  Compilations are counted with a ``jax.monitoring`` listener on XLA's
 backend-compile event (it fires once per executable built, cached or not), so
 the checks hold whatever other tests compiled before.  No timing assertions.
 
@@ -78,7 +80,7 @@ def config(**kw) -> FitConfig:
 
 
 def epoch_cache_size():
-    size = getattr(getattr(fit_module, "_epoch_jit", None), "_cache_size", None)
+    size = getattr(getattr(fit_module, "_generations_jit", None), "_cache_size", None)
     return size() if callable(size) else None
 
 
@@ -94,7 +96,7 @@ def test_same_padded_size_does_not_recompile(skeleton):
     assert epochs_seen == [2, 4, 6]
     # the counter works: this config is new to the process, so the first fit compiled
     assert first, "the first fit compiled nothing: is the compile listener still firing?"
-    epoch_compiles = [n for n in first if "search_epoch" in n]
+    epoch_compiles = [n for n in first if "search_generations" in n]
     assert len(epoch_compiles) == 1, f"epoch compiled {len(epoch_compiles)} times for 3 epochs: {first}"
     if cache_before is not None:
         assert epoch_cache_size() == cache_before + 1
@@ -110,3 +112,18 @@ def test_same_padded_size_does_not_recompile(skeleton):
     with count_compiles() as third:
         fit_module.fit_cloud(cloud(2, MAX_POINTS), skeleton, seed=3, config=cfg)
     assert third == [], f"recompiled in fit_cloud: {third}"
+
+
+def test_memetic_and_final_refinement_share_one_program(skeleton):
+    # memetic on, and the final refinement refines as many candidates (steps differ)
+    cfg = config(memetic_every=EPOCH, memetic_top=3, memetic_steps=2, final_refine_top=3, final_refine_steps=5,
+                 population=9, islands=1)
+    with count_compiles() as first:
+        r1 = Fitter(skeleton, cfg).run(cloud(0, 80), jax.random.key(0))
+    refine_compiles = [n for n in first if "refine_top" in n]
+    assert len(refine_compiles) == 1, f"refinement compiled {len(refine_compiles)} times: {first}"
+    # the counts say every refinement ran: 3 memetic steps and the final one, 3 candidates each
+    assert int(r1.gradient_evaluations) == 3 * (3 * 2) + 3 * 5
+    with count_compiles() as second:
+        Fitter(skeleton, cfg).run(cloud(1, 61), jax.random.key(1))
+    assert second == [], f"recompiled for a cloud of the same padded size: {second}"

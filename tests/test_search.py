@@ -48,7 +48,7 @@ OBJ = ObjectiveConfig(free_space_grid=16, block=64)
 # memetic_top above the population: clamped to it
 GA = FitConfig(
     algorithm="ga", population=16, generations=4, chunk=2, memetic_every=2, memetic_top=20, memetic_steps=2,
-    final_refine_top=3, final_refine_steps=3, islands=1, objective=OBJ,
+    final_refine_top=20, final_refine_steps=3, islands=1, objective=OBJ,
 )
 # no refinement: the plain search budget, population * (generations + 1)
 GA_PLAIN = dataclasses.replace(GA, chunk=4, memetic_every=0, final_refine_steps=0)
@@ -343,13 +343,13 @@ def test_exact_evaluation_counts(config):
 
 
 def test_expected_counts_helper_by_hand():
-    # the formula above, spelled out for GA: 16 + 4*16 + 2 memetic epochs * min(20, 16) + final 3
-    assert expected_counts(GA) == (16 + 64 + 32 + 3, 2 * 16 * 2 + 3 * 3)
+    # the formula above, spelled out for GA: 16 + 4*16 + 2 memetic epochs * min(20, 16) + final min(20, 16)
+    assert expected_counts(GA) == (16 + 64 + 32 + 16, 2 * 16 * 2 + 16 * 3)
     assert expected_counts(GA_PLAIN) == (16 * 5, 0)
     # islands: (8 + 4*8 + 2 epochs * 3) * 2
     assert expected_counts(ISLANDS) == ((8 + 32 + 6) * 2, 2 * 3 * 2 * 2)
     # a shorter last epoch is followed by a memetic step too: 5 generations in epochs of 2 -> 3 steps
-    assert expected_counts(dataclasses.replace(GA, generations=5))[1] == 3 * 16 * 2 + 3 * 3
+    assert expected_counts(dataclasses.replace(GA, generations=5))[1] == 3 * 16 * 2 + 16 * 3
     assert expected_counts(HC) == (16 * 5 + 1, 1)
 
 

@@ -58,7 +58,9 @@ class FitConfig:
         memetic_every: every this many generations, refine the ``memetic_top`` best
             individuals by ``memetic_steps`` Adam steps (0: never).
         final_refine_steps: Adam steps at the end (0: none) on the ``final_refine_top`` best
-            individuals (the GA) or on the best point (other algorithms).
+            individuals (the GA) or on the best point (other algorithms).  When
+            ``final_refine_top == memetic_top`` (the default) the final refinement
+            reuses the memetic step's compiled program.
         learning_rate: Adam learning rate (genome units).
         init_root_std: spread of the initial root translation genes around the
             cloud's centre (genome units).
@@ -94,7 +96,7 @@ class FitConfig:
     memetic_every: int = 25
     memetic_top: int = 8
     memetic_steps: int = 10
-    final_refine_top: int = 4
+    final_refine_top: int = 8
     final_refine_steps: int = 100
     learning_rate: float = 0.01
     init_root_std: float = 0.1
@@ -210,11 +212,6 @@ def _population_cost_fn(skel: Skeleton, obs: Observation, bounds: Bounds, config
     return cost
 
 
-def _single_cost_fn(skel, obs, bounds, config):
-    pop_cost = _population_cost_fn(skel, obs, bounds, config)
-    return lambda g: pop_cost(g[None])[0]
-
-
 def _model_samples(skel: Skeleton) -> jax.Array:
     """Points along the rest-pose capsule axes at scale 1 (skeleton frame)."""
     links = forward_kinematics(skel, rest_pose(skel))
@@ -253,18 +250,18 @@ def matrix_rpy(R: jax.Array) -> jax.Array:
     return jnp.stack([jnp.arctan2(R[2, 1], R[2, 2]), pitch, jnp.arctan2(R[1, 0], R[0, 0])])
 
 
-def aligned_root(key, skel: Skeleton, obs: Observation, scale, rest: RestModel | None = None):
+def aligned_root(flip, skel: Skeleton, obs: Observation, scale, rest: RestModel | None = None):
     """A root pose ``(translation, rpy)`` that aligns the rest-pose model's principal
     axes with the cloud's.
 
-    The sign of each axis is ambiguous: one of the four proper rotations is picked
-    with ``key``.  The model's centroid lands half a mean link radius behind the
+    The sign of each axis is ambiguous: ``flip (2,)`` (booleans) flips the first two
+    axes, the third follows, so the four choices are the four proper rotations.  The model's centroid lands half a mean link radius behind the
     cloud's centroid (the cloud only covers the surface facing the camera).
     ``rest`` (:func:`rest_model`) may be passed to skip recomputing it.
     """
     m_c, M = (rest or rest_model(skel))[:2]
     c_c, C = principal_axes(obs.cloud.points, obs.cloud.weights)
-    s12 = jnp.where(jax.random.bernoulli(key, 0.5, (2,)), 1.0, -1.0)
+    s12 = jnp.where(flip, -1.0, 1.0)
     s3 = s12[0] * s12[1] * jnp.sign(jnp.linalg.det(C) * jnp.linalg.det(M))
     R = (C * jnp.concatenate([s12, s3[None]])[None]) @ M.T
     ray = c_c / jnp.maximum(jnp.linalg.norm(c_c), 1e-9)
@@ -302,25 +299,30 @@ def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, co
     rest = rest or rest_model(skel)
     layout = genome_layout(skel)
     P, D = config.population, layout.size
-    k_u, k_t, k_s, k_l, k_a, k_n = jax.random.split(key, 6)
-    g = jax.random.uniform(k_u, (P, D))
+    # two draws for everything (each random draw is a sizeable program to compile);
+    # the root-translation and length genes are disjoint, so they share one normal array
+    k_u, k_z = jax.random.split(key)
+    u = jax.random.uniform(k_u, (P, D + 2))
+    z = jax.random.normal(k_z, (P, D + 7))
+    g = u[:, :D]
     names = layout.names
     root_t = np.array([n in ("root_tx", "root_ty", "root_tz") for n in names])
     scale_i = names.index("scale")
     is_len = np.array([n.endswith(".length") for n in names])
-    g = jnp.where(root_t, 0.5 + config.init_root_std * jax.random.normal(k_t, (P, D)), g)
+    g = jnp.where(root_t, 0.5 + config.init_root_std * z[:, :D], g)
     s0 = initial_scale(skel, obs, config, rest)
     s_lo, s_hi = bounds.lo[scale_i], bounds.hi[scale_i]
-    s_gene = (s0 * jnp.exp(0.15 * jax.random.normal(k_s, (P,))) - s_lo) / jnp.maximum(s_hi - s_lo, 1e-9)
+    s_gene = (s0 * jnp.exp(0.15 * z[:, D]) - s_lo) / jnp.maximum(s_hi - s_lo, 1e-9)
     g = g.at[:, scale_i].set(s_gene)
     rest_g = encode(skel, bounds, rest_pose(skel))
-    g = jnp.where(is_len, rest_g + 0.1 * jax.random.normal(k_l, (P, D)), g)
+    g = jnp.where(is_len, rest_g + 0.1 * z[:, :D], g)
     n_pca = int(round(config.init_pca_fraction * P))
     if n_pca > 0:
-        t, rpy = jax.vmap(lambda k: aligned_root(k, skel, obs, s0, rest))(jax.random.split(k_a, n_pca))
+        flips = u[:n_pca, D:] < 0.5
+        t, rpy = jax.vmap(lambda f: aligned_root(f, skel, obs, s0, rest))(flips)
         span = jnp.maximum(bounds.hi[:6] - bounds.lo[:6], 1e-9)
         root_g = (jnp.concatenate([t, rpy], 1) - bounds.lo[:6]) / span
-        root_g = root_g + config.init_pca_std * jax.random.normal(k_n, root_g.shape)
+        root_g = root_g + config.init_pca_std * z[:n_pca, D + 1 :]
         g = g.at[:n_pca, :6].set(root_g)
     return jnp.clip(g, 0.0, 1.0)
 
@@ -371,23 +373,76 @@ def _search_init1(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfi
     return SearchState(state, k_run, obs, bounds, jnp.asarray(P, jnp.int32), jnp.asarray(0, jnp.int32))
 
 
-def _memetic(skel, config, st: SearchState, algo_state, cost1):
-    m = min(config.memetic_top, config.population)
-    order = jnp.argsort(algo_state.fitness)[:m]
-    g, f = refine(cost1, algo_state.population[order], config.memetic_steps, config.learning_rate)
-    pop = algo_state.population.at[order].set(g)
-    fit = algo_state.fitness.at[order].set(f)
+def _refine_top1(skel: Skeleton, config: FitConfig, st: SearchState, m: int, steps):
+    """Adam-refine one island's best candidates: the ``m`` fittest of the GA's
+    population, or the best point of the other algorithms.  Returns
+    ``(order, genomes, costs)`` (``order``: the candidates' rows in the population).
+
+    Genes locked at the current generation (``FitConfig.staged``) stay locked.  The
+    step count is dynamic, so the memetic step and the final refinement share one
+    compiled program when they refine the same number of candidates.
+    """
+    state = st.algo_state
+    gen = state.generation_counter
+    pop_cost = _population_cost_fn(skel, st.obs, st.bounds, config)
+    if config.algorithm == "ga":  # elitism keeps the best in the population
+        order = jnp.argsort(state.fitness)[:m]
+        cand = state.population[order]
+    else:
+        order = jnp.zeros((1,), jnp.int32)
+        cand = state.best_solution[None]
+    g, f = refine(lambda G: pop_cost(_lock(skel, config, st.bounds, gen, G)), cand, steps, config.learning_rate)
+    return order, g, f
+
+
+def _per_island(config: FitConfig, fn, *args):
+    """``fn(*args)`` for one island, vmapped over the leading island axis of ``args``
+    when ``config.islands > 1``."""
+    return fn(*args) if config.islands == 1 else jax.vmap(fn)(*args)
+
+
+def refine_top(skel: Skeleton, config: FitConfig, st: SearchState, m: int, steps):
+    """:func:`_refine_top1` on every island."""
+    return _per_island(config, lambda s: _refine_top1(skel, config, s, m, steps), st)
+
+
+def _memetic_top(config: FitConfig) -> int:
+    return min(config.memetic_top, config.population)
+
+
+def _final_top(config: FitConfig) -> int:
+    return min(config.final_refine_top, config.population) if config.algorithm == "ga" else 1
+
+
+def _memetic_apply1(skel: Skeleton, config: FitConfig, st: SearchState, order, g, f) -> SearchState:
+    """Write refined individuals back into the population (and the best so far)."""
+    state = st.algo_state
+    gen = state.generation_counter
     i = jnp.argmin(f)
-    better = f[i] < algo_state.best_fitness
-    return algo_state.replace(
-        population=pop,
-        fitness=fit,
-        best_solution=jnp.where(better, g[i], algo_state.best_solution),
-        best_fitness=jnp.where(better, f[i], algo_state.best_fitness),
+    better = f[i] < state.best_fitness
+    lock = partial(_lock, skel, config, st.bounds, gen)
+    state = state.replace(
+        population=lock(state.population.at[order].set(g)),
+        fitness=state.fitness.at[order].set(f),
+        best_solution=lock(jnp.where(better, g[i], state.best_solution)),
+        best_fitness=jnp.where(better, f[i], state.best_fitness),
+    )
+    m = g.shape[0]
+    return st._replace(
+        algo_state=state,
+        objective_evaluations=st.objective_evaluations + m,
+        gradient_evaluations=st.gradient_evaluations + m * config.memetic_steps,
     )
 
 
-def _search_epoch1(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
+def memetic_apply(skel: Skeleton, config: FitConfig, st: SearchState, refined, history):
+    """Apply :func:`refine_top`'s result as the memetic step; the epoch's last
+    history entry becomes the best cost after it."""
+    st = _per_island(config, lambda s, o, g, f: _memetic_apply1(skel, config, s, o, g, f), st, *refined)
+    return st, history.at[-1].set(jnp.min(st.algo_state.best_fitness))
+
+
+def _generations1(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
     algo, params = _make_algorithm(skel, config)
     pop_cost = _population_cost_fn(skel, st.obs, st.bounds, config)
 
@@ -402,18 +457,7 @@ def _search_epoch1(skel: Skeleton, config: FitConfig, st: SearchState, length: i
 
     (state, key), hist = jax.lax.scan(generation, (st.algo_state, st.key), None, length=length)
     evals = st.objective_evaluations + length * config.population
-    grads = st.gradient_evaluations
-    if config.memetic_on:
-        cost1 = _single_cost_fn(skel, st.obs, st.bounds, config)
-        gen = state.generation_counter
-        state = _memetic(skel, config, st, state, lambda g: cost1(_lock(skel, config, st.bounds, gen, g)))
-        state = state.replace(population=_lock(skel, config, st.bounds, gen, state.population),
-                              best_solution=_lock(skel, config, st.bounds, gen, state.best_solution))
-        m = min(config.memetic_top, config.population)
-        evals = evals + m
-        grads = grads + m * config.memetic_steps
-        hist = hist.at[-1].set(state.best_fitness)
-    return st._replace(algo_state=state, key=key, objective_evaluations=evals, gradient_evaluations=grads), hist
+    return st._replace(algo_state=state, key=key, objective_evaluations=evals), hist
 
 
 def search_init(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> SearchState:
@@ -424,13 +468,24 @@ def search_init(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig)
     return jax.vmap(lambda k: _search_init1(cloud, skel, k, config))(keys)
 
 
-def search_epoch(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
-    """Run ``length`` generations (then a memetic refinement, when on).  Returns the
-    new state and the best cost (over all islands) after each generation ``(length,)``."""
-    if config.islands == 1:
-        return _search_epoch1(skel, config, st, length)
-    st, hist = jax.vmap(lambda s: _search_epoch1(skel, config, s, length))(st)
-    return st, jnp.min(hist, 0)
+def search_generations(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
+    """Run ``length`` generations (no refinement).  Returns the new state and the best
+    cost (over all islands) after each generation ``(length,)``."""
+    st, hist = _per_island(config, lambda s: _generations1(skel, config, s, length), st)
+    return st, (hist if config.islands == 1 else jnp.min(hist, 0))
+
+
+def search_epoch(skel: Skeleton, config: FitConfig, st: SearchState, length: int,
+                 _pieces=(search_generations, refine_top, memetic_apply)):
+    """Run ``length`` generations, then a memetic refinement when it is on.  Returns
+    the new state and the best cost (over all islands) after each generation.
+    (``_pieces``: the three steps, replaced by their compiled forms in :class:`Fitter`.)"""
+    generations, refine_fn, apply_fn = _pieces
+    st, hist = generations(skel, config, st, length)
+    if config.memetic_on:
+        refined = refine_fn(skel, config, st, _memetic_top(config), jnp.int32(config.memetic_steps))
+        st, hist = apply_fn(skel, config, st, refined, hist)
+    return st, hist
 
 
 def evaluation_counts(st: SearchState) -> tuple[jax.Array, jax.Array]:
@@ -438,21 +493,22 @@ def evaluation_counts(st: SearchState) -> tuple[jax.Array, jax.Array]:
     return jnp.sum(st.objective_evaluations), jnp.sum(st.gradient_evaluations)
 
 
-def _finish1(skel: Skeleton, config: FitConfig, st: SearchState):
-    """Refine one island's best candidates; returns ``(genome, cost, evaluations, gradients)``."""
+def final_refine(skel: Skeleton, config: FitConfig, st: SearchState, _refine_fn=refine_top):
+    """The final refinement's candidates refined (:func:`refine_top`), or ``None`` when off."""
+    if config.final_refine_steps > 0 and config.final_refine_top > 0:
+        return _refine_fn(skel, config, st, _final_top(config), jnp.int32(config.final_refine_steps))
+    return None
+
+
+def _finish1(config: FitConfig, st: SearchState, refined):
+    """One island's best: ``(genome, cost, evaluations, gradients)``."""
     state = st.algo_state
-    cost1 = _single_cost_fn(skel, st.obs, st.bounds, config)
     best_g, best_f = state.best_solution, state.best_fitness
     evals, grads = st.objective_evaluations, st.gradient_evaluations
-    if config.final_refine_steps > 0 and config.final_refine_top > 0:
-        if config.algorithm == "ga":  # elitism keeps the best in the population
-            m = min(config.final_refine_top, config.population)
-            cand = state.population[jnp.argsort(state.fitness)[:m]]
-        else:
-            cand = best_g[None]
-        g, f = refine(cost1, cand, config.final_refine_steps, config.learning_rate)
-        evals = evals + cand.shape[0]
-        grads = grads + cand.shape[0] * config.final_refine_steps
+    if refined is not None:
+        _, g, f = refined
+        evals = evals + g.shape[0]
+        grads = grads + g.shape[0] * config.final_refine_steps
         i = jnp.argmin(f)
         better = f[i] < best_f
         best_g = jnp.where(better, g[i], best_g)
@@ -460,12 +516,13 @@ def _finish1(skel: Skeleton, config: FitConfig, st: SearchState):
     return best_g, best_f, evals, grads
 
 
-def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchState, history) -> FitResult:
+def search_result(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchState, history, refined) -> FitResult:
+    """The :class:`FitResult` of a finished search, given :func:`final_refine`'s output."""
     if config.islands == 1:
-        best_g, best_f, evals, grads = _finish1(skel, config, st)
+        best_g, best_f, evals, grads = _finish1(config, st, refined)
         bounds = st.bounds
     else:
-        g, f, e, gr = jax.vmap(lambda s: _finish1(skel, config, s))(st)
+        g, f, e, gr = jax.vmap(lambda s, r: _finish1(config, s, r))(st, refined)
         i = jnp.argmin(f)
         best_g, best_f, evals, grads = g[i], f[i], jnp.sum(e), jnp.sum(gr)
         bounds = jax.tree_util.tree_map(lambda x: x[0], st.bounds)
@@ -474,6 +531,11 @@ def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
     links = forward_kinematics(skel, pose)
     n_dist = (evals + grads).astype(jnp.float32) * cloud.points.shape[0] * skel.num_links
     return FitResult(pose, best_g, links, best_f, history, evals, grads, n_dist, jnp.asarray(0.0, jnp.float32))
+
+
+def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchState, history) -> FitResult:
+    """Final refinement, then the best individual over all islands as a :class:`FitResult`."""
+    return search_result(cloud, skel, config, st, history, final_refine(skel, config, st))
 
 
 def _epochs(config: FitConfig) -> tuple[int, int, int]:
@@ -503,8 +565,21 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
 
 
 _init_jit = jax.jit(search_init, static_argnames="config")
-_epoch_jit = jax.jit(search_epoch, static_argnames=("config", "length"))
-_finish_jit = jax.jit(search_finish, static_argnames="config")
+_generations_jit = jax.jit(search_generations, static_argnames=("config", "length"))
+_refine_jit = jax.jit(refine_top, static_argnames=("config", "m"))
+_memetic_apply_jit = jax.jit(memetic_apply, static_argnames="config")
+_result_jit = jax.jit(search_result, static_argnames="config")
+
+
+def _epoch_jit(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
+    """:func:`search_epoch` in compiled pieces: the generations, then the memetic
+    refinement as its own program (which the final refinement reuses)."""
+    return search_epoch(skel, config, st, length, (_generations_jit, _refine_jit, _memetic_apply_jit))
+
+
+def _finish_jit(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchState, history) -> FitResult:
+    """:func:`search_finish` in compiled pieces (the refinement shared with the memetic step)."""
+    return _result_jit(cloud, skel, config, st, history, final_refine(skel, config, st, _refine_jit))
 
 
 class Fitter:

@@ -61,12 +61,39 @@ def subtree_masks(skel: Skeleton) -> np.ndarray:
     return np.stack([layout.gene_mask(skel.subtree(k)) for k in range(skel.num_links)])
 
 
+def _pick(u, n: int):
+    """An index in ``0 .. n - 1`` from a uniform number in ``[0, 1)``."""
+    return jnp.minimum(jnp.floor(u * n).astype(jnp.int32), n - 1)
+
+
+# Uniform numbers each operator consumes per child (one draw per generation feeds them all).
+_SWAP_U = 2
+
+
+def _mutate_u(num_dims: int) -> int:
+    return 3 + 2 * num_dims
+
+
+def _branch_swap(u, parent_1, parent_2, masks, rate):
+    """:func:`branch_swap` on pre-drawn uniforms ``u (2,)``."""
+    mask = masks[_pick(u[0], masks.shape[0])] & (u[1] < rate)
+    return jnp.where(mask, parent_2, parent_1)
+
+
+def _mutate(u, noise, x, std, rate, branch_rate, masks, reset_rate):
+    """:func:`mutate` on pre-drawn uniforms ``u (3 + 2 D,)`` and normals ``noise (D,)``."""
+    D = x.shape[-1]
+    gene_mask = u[3 : 3 + D] < rate
+    branch_mask = masks[_pick(u[0], masks.shape[0])]
+    mask = jnp.where(u[1] < branch_rate, branch_mask, gene_mask)
+    y = jnp.clip(x + mask * std * noise, 0.0, 1.0)
+    reset = branch_mask & (u[2] < reset_rate)
+    return jnp.where(reset, u[3 + D :], y)
+
+
 def branch_swap(key: jax.Array, parent_1: Solution, parent_2: Solution, masks: jax.Array, rate) -> Solution:
     """Child = ``parent_1`` with one random subtree's genes from ``parent_2`` (with prob. ``rate``)."""
-    k_do, k_which = jax.random.split(key)
-    mask = masks[jax.random.randint(k_which, (), 0, masks.shape[0])]
-    mask = mask & (jax.random.uniform(k_do) < rate)
-    return jnp.where(mask, parent_2, parent_1)
+    return _branch_swap(jax.random.uniform(key, (_SWAP_U,)), parent_1, parent_2, masks, rate)
 
 
 def mutate(key: jax.Array, x: Solution, std, rate, branch_rate, masks: jax.Array, reset_rate=0.0) -> Solution:
@@ -76,13 +103,9 @@ def mutate(key: jax.Array, x: Solution, std, rate, branch_rate, masks: jax.Array
     subtree anew, uniformly in ``[0, 1]``: a jump that moves a whole limb out of a
     local optimum (e.g. an arm hidden inside the trunk) at any step size.
     """
-    k_gene, k_noise, k_mode, k_which, k_reset, k_uni = jax.random.split(key, 6)
-    gene_mask = jax.random.uniform(k_gene, x.shape) < rate
-    branch_mask = masks[jax.random.randint(k_which, (), 0, masks.shape[0])]
-    mask = jnp.where(jax.random.uniform(k_mode) < branch_rate, branch_mask, gene_mask)
-    y = jnp.clip(x + mask * std * jax.random.normal(k_noise, x.shape), 0.0, 1.0)
-    reset = branch_mask & (jax.random.uniform(k_reset) < reset_rate)
-    return jnp.where(reset, jax.random.uniform(k_uni, x.shape), y)
+    k_u, k_n = jax.random.split(key)
+    u = jax.random.uniform(k_u, (_mutate_u(x.shape[-1]),))
+    return _mutate(u, jax.random.normal(k_n, x.shape), x, std, rate, branch_rate, masks, reset_rate)
 
 
 class BranchSwapGA(PopulationBasedAlgorithm):
@@ -121,15 +144,19 @@ class BranchSwapGA(PopulationBasedAlgorithm):
     def _ask(self, key: jax.Array, state: State, params: Params) -> tuple[Population, State]:
         order = jnp.argsort(state.fitness)
         elites = state.population[order[: self.num_elites]]
-        k1, k2, kc, km = jax.random.split(key, 4)
-        i1 = jax.random.randint(k1, (self.population_size,), 0, self.num_elites)
-        i2 = jax.random.randint(k2, (self.population_size,), 0, self.num_elites)
+        # every random number of the generation in two draws (each draw is a sizeable
+        # program: one per operator and child made the step slow to compile)
+        P, D, E = self.population_size, self.num_dims, self.num_elites
+        k_u, k_n = jax.random.split(key)
+        u = jax.random.uniform(k_u, (P, 2 + _SWAP_U + _mutate_u(D)))
+        noise = jax.random.normal(k_n, (P, D))
         masks = jnp.asarray(self.masks)
-        children = jax.vmap(branch_swap, in_axes=(0, 0, 0, None, None))(
-            jax.random.split(kc, self.population_size), elites[i1], elites[i2], masks, params.crossover_rate
+        parent_1, parent_2 = elites[_pick(u[:, 0], E)], elites[_pick(u[:, 1], E)]
+        children = jax.vmap(_branch_swap, in_axes=(0, 0, 0, None, None))(
+            u[:, 2 : 2 + _SWAP_U], parent_1, parent_2, masks, params.crossover_rate
         )
-        children = jax.vmap(mutate, in_axes=(0, 0, None, None, None, None, None))(
-            jax.random.split(km, self.population_size), children, state.std, params.mutation_rate,
+        children = jax.vmap(_mutate, in_axes=(0, 0, 0, None, None, None, None, None))(
+            u[:, 2 + _SWAP_U :], noise, children, state.std, params.mutation_rate,
             params.branch_mutation_rate, masks, params.branch_reset_rate,
         )
         return children, state

@@ -7,29 +7,37 @@ import jax.numpy as jnp
 import optax
 
 
-def refine(loss_fn, genomes: jax.Array, steps: int, learning_rate: float) -> tuple[jax.Array, jax.Array]:
-    """``steps`` Adam steps on each row of ``genomes (m, D)`` for ``loss_fn(genome) -> scalar``.
+def refine(population_loss, genomes: jax.Array, steps, learning_rate: float) -> tuple[jax.Array, jax.Array]:
+    """``steps`` Adam steps on each row of ``genomes (m, D)``.
 
+    ``population_loss(genomes (m, D)) -> (m,)`` scores rows independently (a
+    population cost), so the gradient of its sum is every row's own gradient.
+    ``steps`` may be a traced integer: one compiled program serves any count.
     Genes stay in ``[0, 1]`` (projected after every step).  Returns the refined
     genomes and their losses.  The best iterate of each row is kept, so refinement
     never makes an individual worse.
     """
     opt = optax.adam(learning_rate)
-    value_and_grad = jax.vmap(jax.value_and_grad(loss_fn))
 
-    def step(carry, _):
+    def total(g):
+        f = population_loss(g)
+        return jnp.sum(jnp.where(jnp.isfinite(f), f, 0.0)), f
+
+    value_and_grad = jax.value_and_grad(total, has_aux=True)
+
+    def step(_, carry):
         g, opt_state, best_g, best_f = carry
-        f, grad = value_and_grad(g)
+        (_, f), grad = value_and_grad(g)
         grad = jnp.where(jnp.isfinite(grad), grad, 0.0)
         better = f < best_f
         best_g = jnp.where(better[:, None], g, best_g)
         best_f = jnp.where(better, f, best_f)
         updates, opt_state = opt.update(grad, opt_state, g)
         g = jnp.clip(optax.apply_updates(g, updates), 0.0, 1.0)
-        return (g, opt_state, best_g, best_f), None
+        return g, opt_state, best_g, best_f
 
     init = (genomes, opt.init(genomes), genomes, jnp.full(genomes.shape[:1], jnp.inf, genomes.dtype))
-    (g, _, best_g, best_f), _ = jax.lax.scan(step, init, None, length=steps)
-    f_last = jax.vmap(loss_fn)(g)
+    g, _, best_g, best_f = jax.lax.fori_loop(0, steps, step, init)
+    f_last = population_loss(g)
     better = f_last < best_f
     return jnp.where(better[:, None], g, best_g), jnp.where(better, f_last, best_f)
