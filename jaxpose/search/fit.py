@@ -414,18 +414,24 @@ def _final_top(config: FitConfig) -> int:
     return min(config.final_refine_top, config.population) if config.algorithm == "ga" else 1
 
 
+def _keep_better(g, f, best_g, best_f):
+    """The best of refined rows ``g (m, D)``, ``f (m,)`` if it beats ``(best_g, best_f)``."""
+    i = jnp.argmin(f)
+    better = f[i] < best_f
+    return jnp.where(better, g[i], best_g), jnp.where(better, f[i], best_f)
+
+
 def _memetic_apply1(skel: Skeleton, config: FitConfig, st: SearchState, order, g, f) -> SearchState:
     """Write refined individuals back into the population (and the best so far)."""
     state = st.algo_state
     gen = state.generation_counter
-    i = jnp.argmin(f)
-    better = f[i] < state.best_fitness
+    best_g, best_f = _keep_better(g, f, state.best_solution, state.best_fitness)
     lock = partial(_lock, skel, config, st.bounds, gen)
     state = state.replace(
         population=lock(state.population.at[order].set(g)),
         fitness=state.fitness.at[order].set(f),
-        best_solution=lock(jnp.where(better, g[i], state.best_solution)),
-        best_fitness=jnp.where(better, f[i], state.best_fitness),
+        best_solution=lock(best_g),
+        best_fitness=best_f,
     )
     m = g.shape[0]
     return st._replace(
@@ -509,10 +515,7 @@ def _finish1(config: FitConfig, st: SearchState, refined):
         _, g, f = refined
         evals = evals + g.shape[0]
         grads = grads + g.shape[0] * config.final_refine_steps
-        i = jnp.argmin(f)
-        better = f[i] < best_f
-        best_g = jnp.where(better, g[i], best_g)
-        best_f = jnp.where(better, f[i], best_f)
+        best_g, best_f = _keep_better(g, f, best_g, best_f)
     return best_g, best_f, evals, grads
 
 
