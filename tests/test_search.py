@@ -533,3 +533,97 @@ def test_ga_final_refinement_candidates_are_distinct(monkeypatch):
     (cand,) = seen
     assert cand.shape[0] == min(GA.final_refine_top, GA.population)
     assert len(np.unique(cand, axis=0)) == cand.shape[0], "duplicate refinement candidates"
+# --------------------------------------------------------------------------- orientation hypotheses, island halving
+
+
+@pytest.mark.parametrize("name,axis", [("humanoid", 0), ("snake", 0), ("spider", 2)])
+def test_rest_model_spins_about_the_major_axis_of_elongated_models_else_the_normal(name, axis):
+    skel = skeleton(name)
+    rest = fit_module.rest_model(skel)
+    pts = np.asarray(fit_module._model_samples(skel), np.float64)
+    var = np.sort(np.linalg.eigvalsh(np.cov(pts.T, bias=True)))[::-1]  # NumPy oracle
+    assert (var[0] >= fit_module.ELONGATED * var[1]) == (axis == 0)
+    assert int(rest.spin_axis) == axis
+    np.testing.assert_allclose(float(rest.spread), np.sqrt(((pts - pts.mean(0)) ** 2).sum(1).mean()), rtol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["humanoid", "spider"])
+def test_spun_hypotheses_keep_the_spin_axis_and_turn_about_it(name):
+    """aligned_root(spin=a) = Rot(cloud axis, a) @ aligned_root(spin=0): the model's spin
+    axis stays on the cloud's, and the model's centroid stays on the same spot."""
+    from jaxpose.skeleton import rpy_matrix
+
+    skel = skeleton(name)
+    links = forward_kinematics(skel, true_pose(skel))
+    cloud = capsule_surface_cloud(links.start, links.end, links.radius, 400, 1)
+    obs = observe(cloud, OBJ)
+    rest = fit_module.rest_model(skel)
+    k = int(rest.spin_axis)
+    pts = np.asarray(cloud.points, np.float64)
+    w, v = np.linalg.eigh(np.cov(pts.T, bias=True))
+    c_axis = v[:, ::-1][:, k]  # NumPy oracle of the cloud's axis
+    m_axis = np.asarray(rest.axes)[:, k]
+    m_c = np.asarray(rest.centre)
+    for flip in ([False, False], [True, False]):
+        t0, rpy0 = fit_module.aligned_root(jnp.asarray(flip), skel, obs, 1.3, rest)
+        R0 = np.asarray(rpy_matrix(np.asarray(rpy0, np.float64)))
+        centroid = np.asarray(t0) + 1.3 * R0 @ m_c
+        for a in (0.7, 2.0, -2.9):
+            t, rpy = fit_module.aligned_root(jnp.asarray(flip), skel, obs, 1.3, rest, a)
+            R = np.asarray(rpy_matrix(np.asarray(rpy, np.float64)))
+            assert abs(abs(R @ m_axis @ c_axis) - 1) < 1e-4  # the spin axis lies on the cloud's
+            turn = R @ R0.T  # a rotation by a about the cloud's axis (Rodrigues, by hand)
+            K = np.array([[0, -c_axis[2], c_axis[1]], [c_axis[2], 0, -c_axis[0]], [-c_axis[1], c_axis[0], 0]])
+            np.testing.assert_allclose(turn, np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K, atol=2e-4)
+            np.testing.assert_allclose(np.asarray(t) + 1.3 * R @ m_c, centroid, atol=1e-4)
+
+
+HALVING = dataclasses.replace(GA_PLAIN, population=8, islands=4, chunk=2, halve_islands_at=(0.5,))
+
+
+def test_halving_generations_round_to_epoch_ends_and_skip_the_end():
+    cfg = FitConfig(generations=300, memetic_every=25, islands=32)
+    assert fit_module.halving_generations(cfg) == (100, 150, 200, 250)
+    assert fit_module.halving_generations(dataclasses.replace(cfg, halve_islands_at=(0.99, 0.01))) == (25,)
+    assert fit_module.halving_generations(dataclasses.replace(cfg, islands=1)) == ()
+    assert fit_module.halving_generations(HALVING) == (2,)
+
+
+def test_halving_copies_the_better_half_of_the_islands_and_keeps_their_keys():
+    """Two generations, then the next epoch starts with a halving: the worse two of
+    four islands (by best cost) take the evolutionary state of the better two, one
+    each; keys and evaluation counts stay per island."""
+    skel, cloud = skeleton(), spider_cloud()
+    plain = dataclasses.replace(HALVING, halve_islands_at=())
+    st = fit_module._init_jit(cloud, skel, jax.random.key(3), HALVING)
+    st, _ = fit_module._epoch_jit(skel, HALVING, st, 2)  # generation 0 -> 2: no halving yet
+    st_plain = fit_module._init_jit(cloud, skel, jax.random.key(3), plain)
+    st_plain, _ = fit_module._epoch_jit(skel, plain, st_plain, 2)
+    np.testing.assert_array_equal(np.asarray(st.algo_state.population), np.asarray(st_plain.algo_state.population))
+    halved = fit_module.halve_islands(HALVING, st)
+    kept = fit_module.halve_islands(plain, st)
+    np.testing.assert_array_equal(np.asarray(kept.algo_state.population), np.asarray(st.algo_state.population))
+    best = np.asarray(st.algo_state.best_fitness)
+    better = set(np.argsort(best)[:2].tolist())
+    pop, new_pop = np.asarray(st.algo_state.population), np.asarray(halved.algo_state.population)
+    sources = []
+    for i in range(4):
+        match = [j for j in range(4) if np.array_equal(new_pop[i], pop[j])]
+        assert match and set(match) <= better
+        sources.append(match[0])
+        if i in better:
+            assert sources[-1] == i
+        assert float(halved.algo_state.best_fitness[i]) == float(best[sources[-1]])
+    assert sorted(sources) == sorted(list(better) * 2)
+    np.testing.assert_array_equal(jax.random.key_data(halved.key), jax.random.key_data(st.key))
+    np.testing.assert_array_equal(np.asarray(halved.objective_evaluations), np.asarray(st.objective_evaluations))
+    # the compiled epoch halves at its start when the generation count says so
+    st2, _ = fit_module._epoch_jit(skel, HALVING, st, 2)
+    ref, _ = fit_module._epoch_jit(skel, plain, halved, 2)
+    np.testing.assert_array_equal(np.asarray(st2.algo_state.population), np.asarray(ref.algo_state.population))
+
+
+def test_halve_islands_at_must_hold_fractions():
+    with pytest.raises(ConfigError, match="halve_islands_at"):
+        FitConfig(halve_islands_at=(0.5, 1.0)).validate()
+    assert FitConfig(halve_islands_at=[0.25]).halve_islands_at == (0.25,)  # lists become tuples (hashable)
