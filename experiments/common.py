@@ -49,7 +49,7 @@ from jaxpose.io.skeleton_file import load_skeleton  # noqa: E402
 from jaxpose.io.truth import read_links  # noqa: E402
 from jaxpose.metrics import evaluate  # noqa: E402
 from jaxpose.pipeline import DepthOptions, load_observation  # noqa: E402
-from jaxpose.search.fit import FitConfig, fit_cloud  # noqa: E402
+from jaxpose.search.fit import FitConfig, coarse_switch, fit_cloud  # noqa: E402
 from jaxpose.skeleton import Skeleton  # noqa: E402
 
 DATA_DIR = os.path.join(ROOT, "data")
@@ -196,15 +196,16 @@ def make_config(base: FitConfig, overrides: dict | None = None) -> FitConfig:
     return cfg.validate()
 
 
-def planned_evaluations(config: FitConfig) -> dict:
+def planned_evaluations(config: FitConfig, n_points: int = DepthOptions.max_points) -> dict:
     """Objective and gradient evaluations a fit with ``config`` will count (mirrors jaxpose/search/fit.py).
 
     Initial population ``P``; ``P`` per generation; with the memetic step (GA) ``m =
     min(memetic_top, P)`` evaluations and ``m * memetic_steps`` gradients after every
     epoch (every ``memetic_every`` generations and after a shorter last epoch); the
     final refinement evaluates its ``c`` candidates (GA: ``min(final_refine_top, P)``,
-    otherwise 1) and takes ``c * final_refine_steps`` gradients; times ``islands``.
-    :meth:`FitRunner.run` compares this with every fit's actual counts.
+    otherwise 1) and takes ``c * final_refine_steps`` gradients; a coarse-to-fine GA
+    rescores its population and best (``P + 1``) once, on a cloud of ``n_points``;
+    times ``islands``.  :meth:`FitRunner.run` compares this with every fit's actual counts.
     """
     P, G = config.population, config.generations
     obj, grad = P + G * P, 0
@@ -217,6 +218,8 @@ def planned_evaluations(config: FitConfig) -> dict:
         c = min(config.final_refine_top, P) if config.algorithm == "ga" else 1
         obj += c
         grad += c * config.final_refine_steps
+    if coarse_switch(config, n_points) is not None:
+        obj += P + 1
     isl = getattr(config, "islands", 1)
     return {"objective": obj * isl, "gradient": grad * isl, "total": (obj + grad) * isl}
 

@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 _EPS = 1e-12
 # Floor of a squared point-to-axis distance under the square root: keeps the gradient
@@ -220,7 +221,19 @@ def _blocked_sum_bwd(res, g):
 _blocked_sum.defvjp(_blocked_sum_fwd, _blocked_sum_bwd)
 
 
-def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = ObjectiveConfig.block) -> jax.Array:
+def spread_order(n: int) -> np.ndarray:
+    """A permutation of ``0 .. n-1`` whose every prefix is spread evenly through the
+    original order (a Weyl sequence: ``i`` sorted by ``frac(i / golden ratio)``).  A cloud
+    read off an image row by row keeps, in any prefix, points from the whole image."""
+    return np.argsort((np.arange(n) * 0.6180339887498949) % 1.0, kind="stable")
+
+
+def num_blocks(n_points: int, block: int) -> int:
+    """Blocks of ``block`` points that :func:`data_cost` splits ``n_points`` into."""
+    return -(-n_points // int(max(1, min(block, n_points)))) if n_points else 0
+
+
+def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = ObjectiveConfig.block, blocks=None) -> jax.Array:
     """The paper's data term for a population: ``start, end (P, L, 3)``, ``radius (P, L)``.
 
     Streams over blocks of points (outer scan) and over links (unrolled groups of
@@ -228,11 +241,19 @@ def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = ObjectiveCon
     ``O(P * L + P * block)``: no ``P x N x L`` array is ever formed.  Returns ``(P,)``.
     Reverse-mode derivatives (custom VJP) flow through each point's nearest capsule
     only: the forward pass keeps its index (``P x N`` integers), never per-link residuals.
+
+    ``blocks`` (a traced integer allowed): score only that many blocks of points, taken
+    in :func:`spread_order` so that they cover the whole cloud, and average over them
+    (coarse-to-fine search: one compiled program serves every count).  Forward only:
+    no reverse-mode derivative through a dynamic count.
     """
     pts, w = _present(cloud)
     N = pts.shape[0]
     B = int(max(1, min(block, N)))  # N = 0 (an empty cloud) costs 0
-    nb = -(-N // B)
+    nb = num_blocks(N, B)
+    if blocks is not None:
+        order = spread_order(N)
+        pts, w = pts[order], w[order]
     pad = nb * B - N
     if pad:
         pts = jnp.concatenate([pts, jnp.zeros((pad, 3), pts.dtype)])
@@ -242,8 +263,24 @@ def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = ObjectiveCon
     P, L = start.shape[0], start.shape[1]
     radius = jnp.broadcast_to(jnp.asarray(radius, start.dtype), (P, L))
     inv_sigma = (1.0 / jnp.asarray(sigma, start.dtype)).astype(start.dtype)
-    total = _blocked_sum(px, py, pz, wb, start, end, radius, inv_sigma)
-    return total / jnp.maximum(jnp.sum(w), _EPS)
+    if blocks is None:
+        total = _blocked_sum(px, py, pz, wb, start, end, radius, inv_sigma)
+        return total / jnp.maximum(jnp.sum(w), _EPS)
+    total = _prefix_sum(px, py, pz, wb, start, end, radius, inv_sigma, blocks)
+    used = jnp.sum(jnp.where(jnp.arange(nb) < blocks, jnp.sum(wb, 1), 0.0))
+    return total / jnp.maximum(used, _EPS)
+
+
+def _prefix_sum(px, py, pz, wb, start, end, radius, inv_sigma, blocks):
+    """:func:`_blocked_scan`'s sum over the first ``blocks`` blocks only (a dynamic count)."""
+    links = _prepare(start, end, radius)
+
+    def block(i, total):
+        bx, by, bz, bw = (jax.lax.dynamic_index_in_dim(a, i, keepdims=False) for a in (px, py, pz, wb))
+        best, _ = _link_scan(bx, by, bz, *links, with_arg=False)
+        return total + jnp.sum(bw * jnp.log1p(best * inv_sigma), -1)
+
+    return jax.lax.fori_loop(0, jnp.minimum(blocks, px.shape[0]), block, jnp.zeros(start.shape[0], start.dtype))
 
 
 # --------------------------------------------------------------------------- free space
@@ -329,9 +366,10 @@ def observe(cloud: Cloud, config: ObjectiveConfig = ObjectiveConfig()) -> Observ
     return Observation(cloud, sigma, free_space_map(cloud, config.free_space_grid))
 
 
-def population_cost(obs: Observation, start, end, radius, config: ObjectiveConfig = ObjectiveConfig()):
-    """Total cost ``(P,)`` of a population of posed capsules ``(P, L, 3)``."""
-    cost = data_cost(obs.cloud, obs.sigma, start, end, radius, config.block)
+def population_cost(obs: Observation, start, end, radius, config: ObjectiveConfig = ObjectiveConfig(), blocks=None):
+    """Total cost ``(P,)`` of a population of posed capsules ``(P, L, 3)`` (``blocks``:
+    the data term on that many blocks of points only, see :func:`data_cost`)."""
+    cost = data_cost(obs.cloud, obs.sigma, start, end, radius, config.block, blocks)
     if config.free_space_weight > 0:
         cost = cost + config.free_space_weight * free_space_cost(
             obs.fmap, obs.sigma, start, end, config.free_space_samples, radius

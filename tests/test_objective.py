@@ -14,10 +14,12 @@ from jaxpose.objective import (
     cloud_spread,
     data_cost,
     free_space_cost,
+    num_blocks,
     observe,
     paper_cost,
     point_capsule_distance,
     population_cost,
+    spread_order,
 )
 
 from oracles import brute_cost, spread, surface_distances
@@ -72,6 +74,33 @@ def test_data_cost_equals_brute_force(N, L, block, radii):
     # the streamed kernel does not depend on the block size
     other = data_cost_jit(Cloud(f32(pts), f32(w)), f32(sigma), f32(start), f32(end), f32(radius), block=7)
     np.testing.assert_allclose(np.asarray(other), got, rtol=2e-6)
+
+
+def test_spread_order_prefixes_cover_the_whole_cloud():
+    for n in (1, 7, 1024, 1000):
+        order = spread_order(n)
+        assert sorted(order.tolist()) == list(range(n))
+    order = spread_order(1024)
+    for k in (64, 256, 512):  # any prefix: no gap in the original order much wider than n / k
+        assert np.max(np.diff(np.sort(order[:k]))) <= 3 * 1024 / k
+
+
+@pytest.mark.parametrize("N, block, blocks", [(101, 16, 2), (101, 16, 7), (64, 16, 4), (64, 16, 9), (37, 1024, 1)])
+def test_data_cost_on_leading_blocks_equals_brute_force_on_those_points(N, block, blocks):
+    """``blocks=k``: the weighted mean over the first ``k * block`` points in spread order
+    (all of them once ``k`` covers the cloud), a traced count serving every ``k``."""
+    rng = np.random.default_rng(N + blocks)
+    P, L = 3, 4
+    pts, start, end, radius = random_scene(rng, N, L, P, "mixed")
+    w = rng.uniform(0.2, 2.0, N) * (rng.random(N) < 0.8)  # some padding (weight 0) too
+    sigma = 0.17
+    fn = jax.jit(data_cost, static_argnames="block")
+    got = np.asarray(fn(Cloud(f32(pts), f32(w)), f32(sigma), f32(start), f32(end), f32(radius), block=block,
+                        blocks=jnp.int32(blocks)))
+    used = spread_order(N)[: blocks * min(block, N)]
+    want = [brute_cost(pts[used], w[used], start[k], end[k], radius[k], sigma) for k in range(P)]
+    np.testing.assert_allclose(got, want, rtol=RTOL, atol=1e-7)
+    assert num_blocks(N, block) == -(-N // min(block, N))
 
 
 @pytest.mark.parametrize("N, L, radii", [(50, 3, "pos"), (129, 5, "zero")])

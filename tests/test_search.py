@@ -59,8 +59,10 @@ HC = FitConfig(
     final_refine_top=3, final_refine_steps=1, islands=1, objective=OBJ,
 )
 CMA = dataclasses.replace(GA_PLAIN, algorithm="cma_es")
-ALL = [GA, GA_PLAIN, HC, ISLANDS, CMA]
-IDS = ["ga", "ga-plain", "hc", "ga-islands2", "cma_es"]
+# coarse to fine: one block of 64 points of two until generation 2
+COARSE = dataclasses.replace(ISLANDS, coarse_points=40)
+ALL = [GA, GA_PLAIN, HC, ISLANDS, CMA, COARSE]
+IDS = ["ga", "ga-plain", "hc", "ga-islands2", "cma_es", "ga-coarse"]
 
 
 @functools.cache
@@ -131,6 +133,8 @@ def expected_counts(config: FitConfig):
         m = min(config.final_refine_top, P) if config.algorithm == "ga" else 1
         obj += m
         grad += m * config.final_refine_steps
+    if fit_module.coarse_switch(config, N_POINTS) is not None:  # coarse to fine: population and best rescored
+        obj += P + 1
     return obj * config.islands, grad * config.islands
 
 
@@ -478,16 +482,15 @@ def test_best_pose_respects_the_search_bounds(config):
     np.testing.assert_allclose(np.asarray(res.links.start), np.asarray(links.start), atol=1e-5)
     np.testing.assert_allclose(np.asarray(res.links.end), np.asarray(links.end), atol=1e-5)
     np.testing.assert_allclose(float(res.cost), links_cost(cloud, links), rtol=1e-4, atol=1e-6)
-    # history: one entry per generation, never worse; refinement never makes the result worse
+    # history: one entry per generation, never worse (within each phase of a coarse-to-fine
+    # search: the best cost is on other points after the switch); refinement never makes it worse
     h = np.asarray(res.history)
-    assert h.shape == (config.generations,) and np.all(np.diff(h) <= 0)
+    switch = fit_module.coarse_switch(config, N_POINTS) or 0
+    assert h.shape == (config.generations,) and np.all(np.diff(h[:switch]) <= 0) and np.all(np.diff(h[switch:]) <= 0)
     assert float(res.cost) <= h[-1]
 
 
-@pytest.mark.parametrize("config", [
-    GA, GA_PLAIN, HC, ISLANDS,
-    CMA,
-], ids=IDS)
+@pytest.mark.parametrize("config", ALL, ids=IDS)
 def test_best_genome_lies_in_the_unit_box(config):
     g = np.asarray(run(config).genome)
     assert g.shape == (genome_layout(skeleton()).size,)
@@ -627,3 +630,35 @@ def test_halve_islands_at_must_hold_fractions():
     with pytest.raises(ConfigError, match="halve_islands_at"):
         FitConfig(halve_islands_at=(0.5, 1.0)).validate()
     assert FitConfig(halve_islands_at=[0.25]).halve_islands_at == (0.25,)  # lists become tuples (hashable)
+
+
+def test_coarse_to_fine_scores_leading_blocks_then_rescores_everything():
+    skel, cloud = skeleton(), spider_cloud()
+    assert fit_module.coarse_switch(COARSE, N_POINTS) == 2
+    assert fit_module.coarse_switch(dataclasses.replace(COARSE, coarse_points=100), N_POINTS) is None  # 2 blocks: all
+    obs = observe(cloud, OBJ)
+    from jaxpose.objective import spread_order
+
+    first = spread_order(N_POINTS)[:64]
+    coarse_cloud = Cloud(cloud.points[first], cloud.weights[first])
+
+    def costs(st, c):  # every island's population scored from scratch on cloud c
+        out = []
+        for i in range(COARSE.islands):
+            bounds = jax.tree_util.tree_map(lambda x: x[i], st.bounds)
+            poses = jax.vmap(lambda g: jaxpose.decode(skel, bounds, g))(st.algo_state.population[i])
+            links = jax.vmap(lambda p: forward_kinematics(skel, p))(poses)
+            o = observe(c, OBJ)._replace(sigma=obs.sigma, fmap=obs.fmap)
+            out.append(np.asarray(population_cost(o, links.start, links.end, links.radius, OBJ)))
+        return np.stack(out)
+
+    st = fit_module._init_jit(cloud, skel, jax.random.key(1), COARSE)
+    np.testing.assert_allclose(np.asarray(st.algo_state.fitness), costs(st, coarse_cloud), rtol=2e-5)
+    st, _ = fit_module._epoch_jit(skel, COARSE, st, 2)
+    after = fit_module.rescore_at_switch(skel, COARSE, st)
+    np.testing.assert_allclose(np.asarray(after.algo_state.fitness), costs(after, cloud), rtol=2e-5)
+    assert not np.allclose(np.asarray(st.algo_state.fitness), np.asarray(after.algo_state.fitness))
+    np.testing.assert_array_equal(np.asarray(after.objective_evaluations - st.objective_evaluations),
+                                  COARSE.population + 1)
+    with pytest.raises(ConfigError, match="GA only"):
+        dataclasses.replace(HC, coarse_points=10).validate()

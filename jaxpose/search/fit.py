@@ -27,7 +27,8 @@ from evosax.algorithms.population_based.base import PopulationBasedAlgorithm
 
 from ..errors import ConfigError
 from ..kinematics import Links, forward_kinematics
-from ..objective import Cloud, ObjectiveConfig, Observation, cloud_centre, cloud_spread, observe, population_cost
+from ..objective import (Cloud, ObjectiveConfig, Observation, cloud_centre, cloud_spread, num_blocks, observe,
+                         population_cost)
 from ..skeleton import Bounds, Pose, Skeleton, axis_angle_matrix, decode, encode, genome_bounds, genome_layout, rest_pose
 from .baselines import BoundedHillClimbing, evosax_strategy
 from .ga import BranchSwapGA, subtree_masks
@@ -86,6 +87,13 @@ class FitConfig:
             (successive halving: many orientation hypotheses early, the budget on the
             promising ones later; a copy continues with its own random numbers).
             Each is rounded to the end of an epoch; ``()``: never.
+        coarse_points: coarse-to-fine (GA only; 0: off): during the first
+            ``coarse_until`` of the generations (rounded to the end of an epoch) the
+            GA scores individuals on this many of the cloud's points only (whole
+            blocks of ``objective.block`` points, spread over the cloud), then
+            rescores its population on all of them and goes on with all of them.
+            Gradient refinement always uses every point.
+        coarse_until: see ``coarse_points``.
         objective: the cost's settings.
     """
 
@@ -113,6 +121,8 @@ class FitConfig:
     islands: int = 32
     halve_islands_at: tuple[float, ...] = (1 / 3, 1 / 2, 2 / 3, 5 / 6)
     staged: float = 0.5
+    coarse_points: int = 0
+    coarse_until: float = 0.5
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
 
     def __post_init__(self):  # a list (from JSON, say) would not be hashable
@@ -137,6 +147,12 @@ class FitConfig:
             raise ConfigError(f"scale_window must be > 1 (or 0 for the skeleton's range), got {self.scale_window}")
         if not all(isinstance(f, (int, float)) and 0.0 < f < 1.0 for f in self.halve_islands_at):
             raise ConfigError(f"halve_islands_at must hold fractions in (0, 1), got {self.halve_islands_at!r}")
+        if not isinstance(self.coarse_points, int) or self.coarse_points < 0:
+            raise ConfigError(f"coarse_points must be an integer >= 0, got {self.coarse_points!r}")
+        if self.coarse_points and self.algorithm != "ga":
+            raise ConfigError(f"coarse_points works with the GA only, not {self.algorithm!r}")
+        if not 0.0 < self.coarse_until < 1.0:
+            raise ConfigError(f"coarse_until must lie in (0, 1), got {self.coarse_until}")
         if not 0.0 <= self.staged <= 1.0:
             raise ConfigError(f"staged must lie in [0, 1], got {self.staged}")
         if not 0.0 <= self.init_pca_fraction <= 1.0:
@@ -216,13 +232,57 @@ def _make_algorithm(skel: Skeleton, config: FitConfig):
 
 
 def _population_cost_fn(skel: Skeleton, obs: Observation, bounds: Bounds, config: FitConfig):
-    def cost(genomes):
+    """``cost(genomes (P, D), blocks=None) -> (P,)`` (``blocks``: see :func:`data_cost`)."""
+
+    def cost(genomes, blocks=None):
         poses = jax.vmap(partial(decode, skel, bounds))(genomes)
         links = jax.vmap(partial(forward_kinematics, skel))(poses)
-        c = population_cost(obs, links.start, links.end, links.radius, config.objective)
+        c = population_cost(obs, links.start, links.end, links.radius, config.objective, blocks)
         return jnp.where(jnp.isfinite(c), c, jnp.inf)
 
     return cost
+
+
+def coarse_switch(config: FitConfig, n_points: int) -> int | None:
+    """The generation at which a coarse-to-fine GA goes over to every point (the end of
+    an epoch), or ``None`` when it scores every point throughout (``FitConfig.coarse_points``)."""
+    if not config.coarse_points or _coarse_blocks(config, n_points) >= num_blocks(n_points, config.objective.block):
+        return None
+    E = config.epoch
+    g = E * max(1, round(config.coarse_until * config.generations / E))
+    return g if g < config.generations else None
+
+
+def _coarse_blocks(config: FitConfig, n_points: int) -> int:
+    B = min(config.objective.block, max(n_points, 1))
+    return max(1, -(-config.coarse_points // B))
+
+
+def _blocks_at(config: FitConfig, n_points: int, generation):
+    """Blocks of points the GA scores at ``generation`` (``None``: all, the plain kernel)."""
+    switch = coarse_switch(config, n_points)
+    if switch is None:
+        return None
+    return jnp.where(generation < switch, _coarse_blocks(config, n_points), num_blocks(n_points, config.objective.block))
+
+
+def _rescore1(skel: Skeleton, config: FitConfig, st: SearchState) -> SearchState:
+    """The GA's population and best so far scored anew on every point (coarse -> fine)."""
+    state = st.algo_state
+    both = jnp.concatenate([state.population, state.best_solution[None]])
+    f = _population_cost_fn(skel, st.obs, st.bounds, config)(both)
+    state = state.replace(fitness=f[:-1], best_fitness=f[-1])
+    return st._replace(algo_state=state, objective_evaluations=st.objective_evaluations + both.shape[0])
+
+
+def rescore_at_switch(skel: Skeleton, config: FitConfig, st: SearchState) -> SearchState:
+    """At the coarse-to-fine switch (:func:`coarse_switch`), :func:`_rescore1` every island."""
+    switch = coarse_switch(config, st.obs.cloud.points.shape[-2])
+    if switch is None:
+        return st
+    gen = st.algo_state.generation_counter if config.islands == 1 else st.algo_state.generation_counter[0]
+    return jax.lax.cond(gen == switch, lambda s: _per_island(config, partial(_rescore1, skel, config), s),
+                        lambda s: s, st)
 
 
 def _model_samples(skel: Skeleton) -> jax.Array:
@@ -395,7 +455,7 @@ def _search_init1(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfi
     algo, params = _make_algorithm(skel, config)
     k_pop, k_init, k_run = jax.random.split(key, 3)
     pop0 = _lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config, rest))
-    fit0 = _population_cost_fn(skel, obs, bounds, config)(pop0)
+    fit0 = _population_cost_fn(skel, obs, bounds, config)(pop0, _blocks_at(config, cloud.points.shape[0], 0))
     if isinstance(algo, PopulationBasedAlgorithm):  # the GA, PSO, DE, evosax's SimpleGA, ...
         state = algo.init(k_init, pop0, fit0, params)
     else:  # distribution-based (hill climbing, CMA-ES, ...): start at the best initial individual
@@ -486,13 +546,14 @@ def memetic_apply(skel: Skeleton, config: FitConfig, st: SearchState, refined, h
 def _generations1(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
     algo, params = _make_algorithm(skel, config)
     pop_cost = _population_cost_fn(skel, st.obs, st.bounds, config)
+    n_points = st.obs.cloud.points.shape[0]
 
     def generation(carry, _):
         state, key = carry
         key, k_ask, k_tell = jax.random.split(key, 3)
         pop, state = algo.ask(k_ask, state, params)
         pop = _lock(skel, config, st.bounds, state.generation_counter, pop)
-        fitness = pop_cost(pop)
+        fitness = pop_cost(pop, _blocks_at(config, n_points, state.generation_counter))
         state, _ = algo.tell(k_tell, pop, fitness, state, params)
         return (state, key), state.best_fitness
 
@@ -541,7 +602,7 @@ def search_generations(skel: Skeleton, config: FitConfig, st: SearchState, lengt
     """:func:`halve_islands` (the previous epoch's memetic step included), then run
     ``length`` generations (no refinement).  Returns the new state and the best cost
     (over all islands) after each generation ``(length,)``."""
-    st = halve_islands(config, st)
+    st = rescore_at_switch(skel, config, halve_islands(config, st))
     st, hist = _per_island(config, lambda s: _generations1(skel, config, s, length), st)
     return st, (hist if config.islands == 1 else jnp.min(hist, 0))
 
