@@ -623,8 +623,7 @@ def fit_traced(skel, config, cloud, key):
         s["evaluations"] = int(sum(int(np.sum(np.asarray(x))) for x in s["evaluations"]))
         if s["genome"] is not None and np.ndim(s["genome"]) == 2:  # islands: the best island's best
             i = int(np.argmin(np.asarray(s["fitness"])))
-            s["genome"] = s["genome"][i]
-            s["bounds"] = jax.tree_util.tree_map(lambda x: x[i], s["bounds"])
+            s["genome"] = s["genome"][i]  # the bounds are shared by all islands
     return res, wall, snaps
 
 

@@ -188,3 +188,16 @@ def test_compilation_cache_folder(tmp_path, monkeypatch):
         assert enable_compilation_cache() is None
     finally:
         jax.config.update("jax_compilation_cache_dir", before)
+
+
+def test_fit_options_reach_the_config():
+    from jaxpose.cli import build_parser
+    from jaxpose.commands.fit import config_from_args
+    from jaxpose.search import FitConfig
+
+    args = build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", "--coarse-points", "256",
+                                      "--islands", "3", "--population", "20", "--generations", "40"])
+    cfg = config_from_args(args)
+    assert (cfg.coarse_points, cfg.islands, cfg.population, cfg.generations) == (256, 3, 20, 40)
+    default = config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider"]))
+    assert default == FitConfig()

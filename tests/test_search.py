@@ -645,8 +645,7 @@ def test_coarse_to_fine_scores_leading_blocks_then_rescores_everything():
     def costs(st, c):  # every island's population scored from scratch on cloud c
         out = []
         for i in range(COARSE.islands):
-            bounds = jax.tree_util.tree_map(lambda x: x[i], st.bounds)
-            poses = jax.vmap(lambda g: jaxpose.decode(skel, bounds, g))(st.algo_state.population[i])
+            poses = jax.vmap(lambda g: jaxpose.decode(skel, st.bounds, g))(st.algo_state.population[i])
             links = jax.vmap(lambda p: forward_kinematics(skel, p))(poses)
             o = observe(c, OBJ)._replace(sigma=obs.sigma, fmap=obs.fmap)
             out.append(np.asarray(population_cost(o, links.start, links.end, links.radius, OBJ)))

@@ -32,6 +32,9 @@ def register(sub) -> None:
     p.add_argument("--generations", type=int, default=FitConfig.generations)
     p.add_argument("--islands", type=int, default=FitConfig.islands,
                    help=f"independent populations searched side by side (default {FitConfig.islands})")
+    p.add_argument("--coarse-points", type=int, default=FitConfig.coarse_points,
+                   help="coarse-to-fine (GA only): score on this many points during the first half of the "
+                        "generations, then on all (default 0: off)")
     p.add_argument("--no-refine", action="store_true", help="no gradient refinement (memetic or final)")
     p.add_argument("--sigma-factor", type=float, default=ObjectiveConfig.sigma_factor,
                    help="sigma = this x the cloud's spread (1: the paper's objective; "
@@ -64,6 +67,10 @@ def config_from_args(args) -> FitConfig:
         raise ConfigError(f"--generations must be >= 1, got {args.generations}")
     if args.islands < 1:
         raise ConfigError(f"--islands must be >= 1, got {args.islands}")
+    if args.coarse_points < 0:
+        raise ConfigError(f"--coarse-points must be >= 0, got {args.coarse_points}")
+    if args.coarse_points and args.algorithm != "ga":
+        raise ConfigError(f"--coarse-points works with --algorithm ga only, not {args.algorithm!r}")
     if args.seed < 0 or args.seed >= 2**32:
         raise ConfigError(f"--seed must lie in 0 .. 2**32-1, got {args.seed}")
     if not _finite(args, "sigma_factor", "--sigma-factor") > 0:
@@ -80,6 +87,7 @@ def config_from_args(args) -> FitConfig:
         population=args.population,
         generations=args.generations,
         islands=args.islands,
+        coarse_points=args.coarse_points,
         objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor),
     )
     if args.no_refine:

@@ -67,8 +67,11 @@ class FitConfig:
             cloud's centre (genome units).
         init_pca_fraction: fraction of the initial population whose root
             orientation aligns the model's principal axes (rest pose) with the
-            cloud's, one of the four proper sign choices at random, and whose root
-            puts the model's centre behind the cloud's centre (0: all uniform).
+            cloud's, one of the four proper sign choices at random, then spun by a
+            uniform angle about the most reliable of those axes (the major axis of
+            an elongated model, else the normal; the other two are ambiguous under
+            occlusion), and whose root puts the model's centre behind the cloud's
+            centre (0: all uniform).
         init_pca_std: noise on those individuals' root genes (genome units).
         scale_window: the global scale is searched within ``s0 / w .. s0 * w``
             (intersected with the skeleton's range), ``s0`` being the cloud's
@@ -194,6 +197,9 @@ class FitResult(NamedTuple):
 
 
 class SearchState(NamedTuple):
+    """The search between compiled pieces.  With islands, every field but ``obs`` and
+    ``bounds`` (the same for all islands, stored once) has a leading island axis."""
+
     algo_state: Any
     key: jax.Array
     obs: Observation
@@ -448,10 +454,9 @@ def _lock(skel: Skeleton, config: FitConfig, bounds: Bounds, generation, genomes
     return jnp.where(_unlocked(skel, config, generation), genomes, rest)
 
 
-def _search_init1(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> SearchState:
-    obs = observe(cloud, config.objective)
-    rest = rest_model(skel)
-    bounds = search_bounds(skel, obs, config, rest)
+def _search_init1(obs: Observation, bounds: Bounds, rest: RestModel, skel: Skeleton, key: jax.Array,
+                  config: FitConfig) -> SearchState:
+    cloud = obs.cloud
     algo, params = _make_algorithm(skel, config)
     k_pop, k_init, k_run = jax.random.split(key, 3)
     pop0 = _lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config, rest))
@@ -477,28 +482,61 @@ def _refine_top1(skel: Skeleton, config: FitConfig, st: SearchState, m: int, ste
     step count is dynamic, so the memetic step and the final refinement share one
     compiled program when they refine the same number of candidates.
     """
-    state = st.algo_state
-    gen = state.generation_counter
-    pop_cost = _population_cost_fn(skel, st.obs, st.bounds, config)
-    if config.algorithm == "ga":  # elitism keeps the best in the population
-        order = jnp.argsort(state.fitness)[:m]
-        cand = state.population[order]
-    else:
-        order = jnp.zeros((1,), jnp.int32)
-        cand = state.best_solution[None]
-    g, f = refine(lambda G: pop_cost(_lock(skel, config, st.bounds, gen, G)), cand, steps, config.learning_rate)
+    order, cand = _candidates(config, m, st.algo_state)
+    g, f = _refine_rows(skel, config, st.obs, st.bounds, st.algo_state.generation_counter, cand, steps)
     return order, g, f
 
 
-def _per_island(config: FitConfig, fn, *args):
-    """``fn(*args)`` for one island, vmapped over the leading island axis of ``args``
-    when ``config.islands > 1``."""
-    return fn(*args) if config.islands == 1 else jax.vmap(fn)(*args)
+def _refine_rows(skel: Skeleton, config: FitConfig, obs: Observation, bounds: Bounds, gen, cand, steps):
+    """Adam-refine the rows of ``cand (m, D)``; genes locked at ``gen`` stay locked."""
+    pop_cost = _population_cost_fn(skel, obs, bounds, config)
+    return refine(lambda G: pop_cost(_lock(skel, config, bounds, gen, G)), cand, steps, config.learning_rate)
+
+
+def _per_island(config: FitConfig, fn, st: SearchState, *args):
+    """``fn(st, *args)`` for one island, vmapped over the leading island axis of ``st``
+    and ``args`` when ``config.islands > 1``.  The observation and bounds are shared,
+    not batched: every island reads the same cloud.  A :class:`SearchState` in
+    ``fn``'s output (alone or in a tuple) gets them back."""
+    if config.islands == 1:
+        return fn(st, *args)
+    obs, bounds = st.obs, st.bounds
+
+    def one(s, *a):
+        return _map_states(fn(s._replace(obs=obs, bounds=bounds), *a), lambda o: o._replace(obs=None, bounds=None))
+
+    out = jax.vmap(one)(st._replace(obs=None, bounds=None), *args)
+    return _map_states(out, lambda o: o._replace(obs=obs, bounds=bounds))
+
+
+def _map_states(out, f):
+    """``f`` applied to ``out`` if it is a :class:`SearchState`, or to the states in a tuple."""
+    if isinstance(out, SearchState):
+        return f(out)
+    if type(out) is tuple:
+        return tuple(_map_states(o, f) for o in out)
+    return out
+
+
+def _candidates(config: FitConfig, m: int, state):
+    """The ``m`` fittest of the GA's population (``order``: their rows), or the best
+    point of the other algorithms."""
+    if config.algorithm == "ga":  # elitism keeps the best in the population
+        order = jnp.argsort(state.fitness)[:m]
+        return order, state.population[order]
+    return jnp.zeros((1,), jnp.int32), state.best_solution[None]
 
 
 def refine_top(skel: Skeleton, config: FitConfig, st: SearchState, m: int, steps):
-    """:func:`_refine_top1` on every island."""
-    return _per_island(config, lambda s: _refine_top1(skel, config, s, m, steps), st)
+    """:func:`_refine_top1` on every island: the islands' candidates are refined as one
+    batch (every row's refinement is its own; the cloud is the same)."""
+    if config.islands == 1:
+        return _refine_top1(skel, config, st, m, steps)
+    order, cand = jax.vmap(partial(_candidates, config, m))(st.algo_state)
+    I, k, D = cand.shape
+    gen = st.algo_state.generation_counter[0]
+    g, f = _refine_rows(skel, config, st.obs, st.bounds, gen, cand.reshape(I * k, D), steps)
+    return order, g.reshape(I, k, D), f.reshape(I, k)
 
 
 def _memetic_top(config: FitConfig) -> int:
@@ -564,10 +602,14 @@ def _generations1(skel: Skeleton, config: FitConfig, st: SearchState, length: in
 
 def search_init(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> SearchState:
     """Initial search state (with a leading island axis when ``config.islands > 1``)."""
+    obs = observe(cloud, config.objective)
+    rest = rest_model(skel)
+    bounds = search_bounds(skel, obs, config, rest)
     if config.islands == 1:
-        return _search_init1(cloud, skel, key, config)
-    keys = jax.random.split(key, config.islands)
-    return jax.vmap(lambda k: _search_init1(cloud, skel, k, config))(keys)
+        return _search_init1(obs, bounds, rest, skel, key, config)
+    st = jax.vmap(lambda k: _search_init1(obs, bounds, rest, skel, k, config)._replace(obs=None, bounds=None))(
+        jax.random.split(key, config.islands))
+    return st._replace(obs=obs, bounds=bounds)
 
 
 def halving_generations(config: FitConfig) -> tuple[int, ...]:
@@ -649,12 +691,11 @@ def search_result(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
     """The :class:`FitResult` of a finished search, given :func:`final_refine`'s output."""
     if config.islands == 1:
         best_g, best_f, evals, grads = _finish1(config, st, refined)
-        bounds = st.bounds
     else:
-        g, f, e, gr = jax.vmap(lambda s, r: _finish1(config, s, r))(st, refined)
+        g, f, e, gr = _per_island(config, lambda s, r: _finish1(config, s, r), st, refined)
         i = jnp.argmin(f)
         best_g, best_f, evals, grads = g[i], f[i], jnp.sum(e), jnp.sum(gr)
-        bounds = jax.tree_util.tree_map(lambda x: x[0], st.bounds)
+    bounds = st.bounds
     best_g = jnp.clip(best_g, 0.0, 1.0)  # evosax strategies sample unbounded; decode clips the same way
     pose = decode(skel, bounds, best_g)
     links = forward_kinematics(skel, pose)
