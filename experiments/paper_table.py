@@ -26,6 +26,7 @@ VARIANTS = {
     "ga": {"algorithm": "ga"},
     "ga-paper-objective": {"algorithm": "ga", "objective": {"free_space_weight": 0.0, "sigma_factor": 1.0}},
     "hc": {"algorithm": "hc"},
+    "ga-coarse": {"algorithm": "ga", "coarse_points": 256},
 }
 # Every other variant gets the generation count that brings its evaluation count
 # (see --match) closest to this one's.
