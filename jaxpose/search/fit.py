@@ -473,20 +473,6 @@ def _search_init1(obs: Observation, bounds: Bounds, rest: RestModel, skel: Skele
     return SearchState(state, k_run, obs, bounds, jnp.asarray(P, jnp.int32), jnp.asarray(0, jnp.int32))
 
 
-def _refine_top1(skel: Skeleton, config: FitConfig, st: SearchState, m: int, steps):
-    """Adam-refine one island's best candidates: the ``m`` fittest of the GA's
-    population, or the best point of the other algorithms.  Returns
-    ``(order, genomes, costs)`` (``order``: the candidates' rows in the population).
-
-    Genes locked at the current generation (``FitConfig.staged``) stay locked.  The
-    step count is dynamic, so the memetic step and the final refinement share one
-    compiled program when they refine the same number of candidates.
-    """
-    order, cand = _candidates(config, m, st.algo_state)
-    g, f = _refine_rows(skel, config, st.obs, st.bounds, st.algo_state.generation_counter, cand, steps)
-    return order, g, f
-
-
 def _refine_rows(skel: Skeleton, config: FitConfig, obs: Observation, bounds: Bounds, gen, cand, steps):
     """Adam-refine the rows of ``cand (m, D)``; genes locked at ``gen`` stay locked."""
     pop_cost = _population_cost_fn(skel, obs, bounds, config)
@@ -500,12 +486,14 @@ def _per_island(config: FitConfig, fn, st: SearchState, *args):
     ``fn``'s output (alone or in a tuple) gets them back."""
     if config.islands == 1:
         return fn(st, *args)
-    obs, bounds = st.obs, st.bounds
+    return _vmap_shared(st.obs, st.bounds, lambda s, *a: fn(s._replace(obs=st.obs, bounds=st.bounds), *a),
+                        st._replace(obs=None, bounds=None), *args)
 
-    def one(s, *a):
-        return _map_states(fn(s._replace(obs=obs, bounds=bounds), *a), lambda o: o._replace(obs=None, bounds=None))
 
-    out = jax.vmap(one)(st._replace(obs=None, bounds=None), *args)
+def _vmap_shared(obs: Observation, bounds: Bounds, fn, *args):
+    """``jax.vmap(fn)(*args)`` with ``obs`` and ``bounds`` left out of the batch: any
+    :class:`SearchState` that ``fn`` returns gets them back unbatched."""
+    out = jax.vmap(lambda *a: _map_states(fn(*a), lambda o: o._replace(obs=None, bounds=None)))(*args)
     return _map_states(out, lambda o: o._replace(obs=obs, bounds=bounds))
 
 
@@ -528,15 +516,22 @@ def _candidates(config: FitConfig, m: int, state):
 
 
 def refine_top(skel: Skeleton, config: FitConfig, st: SearchState, m: int, steps):
-    """:func:`_refine_top1` on every island: the islands' candidates are refined as one
-    batch (every row's refinement is its own; the cloud is the same)."""
-    if config.islands == 1:
-        return _refine_top1(skel, config, st, m, steps)
-    order, cand = jax.vmap(partial(_candidates, config, m))(st.algo_state)
-    I, k, D = cand.shape
-    gen = st.algo_state.generation_counter[0]
-    g, f = _refine_rows(skel, config, st.obs, st.bounds, gen, cand.reshape(I * k, D), steps)
-    return order, g.reshape(I, k, D), f.reshape(I, k)
+    """Adam-refine every island's best candidates (:func:`_candidates`).  Returns
+    ``(order, genomes, costs)`` (``order``: the candidates' rows in the population),
+    with a leading island axis when there are islands.
+
+    The islands' candidates are refined as one batch (every row's refinement is its
+    own; the cloud is the same).  Genes locked at the current generation
+    (``FitConfig.staged``) stay locked.  The step count is dynamic, so the memetic
+    step and the final refinement share one compiled program when they refine the
+    same number of candidates.
+    """
+    pick = partial(_candidates, config, m)
+    order, cand = pick(st.algo_state) if config.islands == 1 else jax.vmap(pick)(st.algo_state)
+    gen = st.algo_state.generation_counter.reshape(-1)[0]
+    D = cand.shape[-1]
+    g, f = _refine_rows(skel, config, st.obs, st.bounds, gen, cand.reshape(-1, D), steps)
+    return order, g.reshape(cand.shape), f.reshape(cand.shape[:-1])
 
 
 def _memetic_top(config: FitConfig) -> int:
@@ -607,9 +602,8 @@ def search_init(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig)
     bounds = search_bounds(skel, obs, config, rest)
     if config.islands == 1:
         return _search_init1(obs, bounds, rest, skel, key, config)
-    st = jax.vmap(lambda k: _search_init1(obs, bounds, rest, skel, k, config)._replace(obs=None, bounds=None))(
-        jax.random.split(key, config.islands))
-    return st._replace(obs=obs, bounds=bounds)
+    return _vmap_shared(obs, bounds, lambda k: _search_init1(obs, bounds, rest, skel, k, config),
+                        jax.random.split(key, config.islands))
 
 
 def halving_generations(config: FitConfig) -> tuple[int, ...]:
