@@ -10,7 +10,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import jaxpose.kinematics as K
 from jaxpose.io.skeleton_file import load_skeleton, shipped_skeletons
 from jaxpose.kinematics import forward_kinematics
 from jaxpose.skeleton import LinkSpec, Pose, axis_angle_matrix, build_skeleton, rest_pose, rpy_matrix
@@ -132,27 +131,28 @@ def test_random_trees_match_oracle(seed):
 
 
 def test_deep_random_tree_matches_oracle():
-    """Deeper than UNROLL_MAX_LEVELS: the scanned composition."""
+    """A long chain (many levels of one link each, scanned like any other tree)."""
     rng = np.random.default_rng(7)
     desc = random_tree(rng, 40, p_root=0.02, chain_bias=0.85)
     skel = build_from_desc(desc)
-    assert len(skel.levels) > K.UNROLL_MAX_LEVELS
+    assert len(skel.levels) > 16
     pose = random_pose(skel, rng, angle_range=0.5, scale=0.7)
     pose = pose._replace(lengths=pose.lengths * 0.2)
     assert_matches_oracle(skel, desc, pose)
 
 
 @pytest.mark.parametrize("name", ["humanoid", "spider"])
-def test_scan_composition_equals_unrolled(name, monkeypatch):
+def test_shipped_skeletons_match_oracle_under_a_population_vmap(name):
+    """The population form (vmapped over poses, as the search calls it) equals the
+    recursive NumPy oracle pose by pose."""
     skel = load_skeleton(name)
-    pose = random_pose(skel, np.random.default_rng(3))
-    unrolled = fk_jit(skel, pose)
-    monkeypatch.setattr(K, "UNROLL_MAX_LEVELS", 0)
-    fk_scanned = jax.jit(lambda s, p: forward_kinematics(s, p))  # a fresh trace under the patch
-    scanned = fk_scanned(skel, pose)
-    for a, b in zip(unrolled, scanned):
-        np.testing.assert_allclose(np.asarray(a), np.asarray(b), atol=1e-6)
-    assert_matches_oracle(skel, raw_links(name), pose, fk=fk_scanned)
+    rng = np.random.default_rng(3)
+    poses = [random_pose(skel, rng) for _ in range(3)]
+    batch = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *poses)
+    links = jax.jit(jax.vmap(forward_kinematics, in_axes=(None, 0)))(skel, batch)
+    for i, pose in enumerate(poses):
+        one = jax.tree_util.tree_map(lambda x: x[i], links)
+        assert_matches_oracle(skel, raw_links(name), pose, fk=lambda s, p, one=one: one)
 
 
 # --------------------------------------------------------------------------- properties
