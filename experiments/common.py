@@ -199,24 +199,20 @@ def make_config(base: FitConfig, overrides: dict | None = None) -> FitConfig:
 def planned_evaluations(config: FitConfig, n_points: int = DepthOptions.max_points) -> dict:
     """Objective and gradient evaluations a fit with ``config`` will count (mirrors jaxpose/search/fit.py).
 
-    Initial population ``P``; ``P`` per generation; with the memetic step (GA) ``m =
-    min(memetic_top, P)`` evaluations and ``m * memetic_steps`` gradients after every
-    epoch (every ``memetic_every`` generations and after a shorter last epoch); the
-    final refinement evaluates its ``c`` candidates (GA: ``min(final_refine_top, P)``,
-    otherwise 1) and takes ``c * final_refine_steps`` gradients; a coarse-to-fine GA
+    ``P`` per generation (the first generation evaluates the initial population); with
+    the memetic step (GA) ``m * memetic_steps`` gradients, ``m = min(memetic_top, P)``,
+    after every epoch (every ``memetic_every`` generations and after a shorter last
+    epoch); the final refinement takes ``c * final_refine_steps`` gradients for its
+    ``c`` candidates (GA: ``min(final_refine_top, P)``, otherwise 1); a coarse-to-fine GA
     rescores its population and best (``P + 1``) once, on a cloud of ``n_points``;
     times ``islands``.  :meth:`FitRunner.run` compares this with every fit's actual counts.
     """
     P, G = config.population, config.generations
-    obj, grad = P + G * P, 0
+    obj, grad = G * P, 0
     if config.memetic_on:
-        epochs = math.ceil(G / config.epoch)
-        m = min(config.memetic_top, P)
-        obj += epochs * m
-        grad += epochs * m * config.memetic_steps
+        grad += math.ceil(G / config.epoch) * min(config.memetic_top, P) * config.memetic_steps
     if config.final_refine_steps > 0 and config.final_refine_top > 0:
         c = min(config.final_refine_top, P) if config.algorithm == "ga" else 1
-        obj += c
         grad += c * config.final_refine_steps
     if coarse_switch(config, n_points) is not None:
         obj += P + 1

@@ -77,15 +77,15 @@ def timing_model(rec: dict) -> tuple[float, float]:
 
     With two or more callbacks, the time per generation is the time between the first
     and the last callback over the generations between them (memetic steps included,
-    as they recur every epoch); with one, the time to it over ``generations + 1`` (the
-    initial population costs about one generation).  The fixed part (initial
+    as they recur every epoch); with one, the time to it over its generation count (the
+    first generation evaluates the initial population).  The fixed part (initial
     population, final refinement, the Python loop) is the rest of the fit's time.
     """
     ts, G = rec["epoch_times"], rec["generations"]
     if len(ts) >= 2 and ts[-1][0] > ts[0][0]:
         tau = (ts[-1][1] - ts[0][1]) / (ts[-1][0] - ts[0][0])
     else:
-        tau = ts[-1][1] / (ts[-1][0] + 1)
+        tau = ts[-1][1] / max(ts[-1][0], 1)
     return tau, max(0.0, rec["wall_seconds"] - G * tau)
 
 

@@ -10,14 +10,11 @@ explicitly: the default may change.
 Expected evaluation counts are written from the documented budget (``FitConfig``
 and ``jaxpose.search.fit`` docstrings), not from the code:
 
-* initial population: ``population``;
-* each generation: ``population``;
+* each generation (the first evaluates the initial population): ``population``;
 * memetic step (GA only), after every ``memetic_every`` generations and after a
-  final shorter epoch: ``m = min(memetic_top, population)`` plain evaluations
-  (the refined individuals' last losses) and ``m * memetic_steps`` gradients;
+  final shorter epoch: ``m * memetic_steps`` gradients, ``m = min(memetic_top, population)``;
 * final refinement: ``min(final_refine_top, population)`` candidates for the GA,
-  the single best for the other algorithms, each ``final_refine_steps``
-  gradients and one plain evaluation;
+  the single best for the other algorithms, each ``final_refine_steps`` gradients;
 * everything times ``islands``.
 """
 
@@ -50,7 +47,7 @@ GA = FitConfig(
     algorithm="ga", population=16, generations=4, chunk=2, memetic_every=2, memetic_top=20, memetic_steps=2,
     final_refine_top=20, final_refine_steps=3, islands=1, objective=OBJ,
 )
-# no refinement: the plain search budget, population * (generations + 1)
+# no refinement: the plain search budget, population * generations
 GA_PLAIN = dataclasses.replace(GA, chunk=4, memetic_every=0, final_refine_steps=0)
 ISLANDS = dataclasses.replace(GA, population=8, memetic_top=3, final_refine_steps=0, islands=2)
 # a large step so that the first generation's neighbours are all worse than the start
@@ -123,15 +120,12 @@ def run(config: FitConfig, seed: int = 0, cloud_seed: int = 0):
 def expected_counts(config: FitConfig):
     """(objective, gradient) evaluations from the documented budget (module docstring)."""
     P, G = config.population, config.generations
-    obj, grad = P + G * P, 0
+    obj, grad = G * P, 0
     if config.algorithm == "ga" and min(config.memetic_every, config.memetic_top, config.memetic_steps) > 0:
         refinements = -(-G // config.memetic_every)  # one per full epoch and one after a shorter last epoch
-        m = min(config.memetic_top, P)
-        obj += refinements * m
-        grad += refinements * m * config.memetic_steps
+        grad += refinements * min(config.memetic_top, P) * config.memetic_steps
     if config.final_refine_steps > 0 and config.final_refine_top > 0:
         m = min(config.final_refine_top, P) if config.algorithm == "ga" else 1
-        obj += m
         grad += m * config.final_refine_steps
     if fit_module.coarse_switch(config, N_POINTS) is not None:  # coarse to fine: population and best rescored
         obj += P + 1
@@ -347,14 +341,15 @@ def test_exact_evaluation_counts(config):
 
 
 def test_expected_counts_helper_by_hand():
-    # the formula above, spelled out for GA: 16 + 4*16 + 2 memetic epochs * min(20, 16) + final min(20, 16)
-    assert expected_counts(GA) == (16 + 64 + 32 + 16, 2 * 16 * 2 + 16 * 3)
-    assert expected_counts(GA_PLAIN) == (16 * 5, 0)
-    # islands: (8 + 4*8 + 2 epochs * 3) * 2
-    assert expected_counts(ISLANDS) == ((8 + 32 + 6) * 2, 2 * 3 * 2 * 2)
+    # the formula above, spelled out for GA: 4 generations of 16; gradients: 2 memetic epochs *
+    # min(20, 16) candidates * 2 steps + the final refinement's min(20, 16) * 3 steps
+    assert expected_counts(GA) == (4 * 16, 2 * 16 * 2 + 16 * 3)
+    assert expected_counts(GA_PLAIN) == (16 * 4, 0)
+    # islands: 4 generations of 8, 2 epochs of 3 candidates * 2 steps, all times 2
+    assert expected_counts(ISLANDS) == (4 * 8 * 2, 2 * 3 * 2 * 2)
     # a shorter last epoch is followed by a memetic step too: 5 generations in epochs of 2 -> 3 steps
     assert expected_counts(dataclasses.replace(GA, generations=5))[1] == 3 * 16 * 2 + 16 * 3
-    assert expected_counts(HC) == (16 * 5 + 1, 1)
+    assert expected_counts(HC) == (16 * 4, 1)
 
 
 # --------------------------------------------------------------------------- 6. determinism
@@ -409,11 +404,11 @@ def test_vmapped_jit_fit_equals_separate_fits_with_refinement():
 @pytest.mark.parametrize("config", [GA_PLAIN, HC, CMA], ids=["ga-plain", "hc", "cma_es"])
 def test_baselines_spend_the_ga_search_budget(config):
     res = run(config)
-    ga_search = GA.population * (GA.generations + 1)
+    ga_search = GA.population * GA.generations
     assert (config.population, config.generations) == (GA.population, GA.generations)
-    refine_evals = 1 if config.final_refine_steps and config.final_refine_top else 0
-    assert int(res.objective_evaluations) - refine_evals == ga_search
-    assert int(res.gradient_evaluations) == refine_evals * config.final_refine_steps
+    refined = 1 if config.final_refine_steps and config.final_refine_top else 0
+    assert int(res.objective_evaluations) == ga_search
+    assert int(res.gradient_evaluations) == refined * config.final_refine_steps
     assert res.history.shape == (config.generations,)
     assert np.all(np.diff(np.asarray(res.history)) <= 0)
     assert float(res.cost) <= float(res.history[-1])
@@ -652,8 +647,10 @@ def test_coarse_to_fine_scores_leading_blocks_then_rescores_everything():
         return np.stack(out)
 
     st = fit_module._init_jit(cloud, skel, jax.random.key(1), COARSE)
+    st, _ = fit_module._generations_jit(skel, COARSE, st, 2)  # before the switch: scored on the coarse cloud
     np.testing.assert_allclose(np.asarray(st.algo_state.fitness), costs(st, coarse_cloud), rtol=2e-5)
-    st, _ = fit_module._epoch_jit(skel, COARSE, st, 2)
+    st, _ = fit_module.memetic_apply(skel, COARSE, st, fit_module._refine_jit(skel, COARSE, st, 3, jnp.int32(2)),
+                                     jnp.zeros(2))
     after = fit_module.rescore_at_switch(skel, COARSE, st)
     np.testing.assert_allclose(np.asarray(after.algo_state.fitness), costs(after, cloud), rtol=2e-5)
     assert not np.allclose(np.asarray(st.algo_state.fitness), np.asarray(after.algo_state.fitness))

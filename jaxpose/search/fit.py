@@ -4,9 +4,10 @@ The whole search is pure JAX: :func:`fit` is jit-compatible and vmappable over a
 batch of clouds.  :class:`Fitter` runs the same steps one compiled chunk at a time
 so that a caller (the command line) can show progress between chunks.
 
-Budget.  ``population`` individuals are evaluated in the initial population and
-in each of ``generations`` generations.  Refinement adds gradient evaluations (a
-cost and its gradient) and a few plain evaluations.  ``FitResult`` reports exact
+Budget.  ``population`` individuals are evaluated in each of ``generations``
+generations, the first of which is the initial population.  Refinement adds
+gradient evaluations (a cost and its gradient), ``memetic_steps`` or
+``final_refine_steps`` per refined individual.  ``FitResult`` reports exact
 counts; ``distance_evaluations`` counts point-to-capsule distances
 (``(objective + gradient evaluations) * N * L`` with ``N`` the cloud's array size).
 """
@@ -25,6 +26,7 @@ import numpy as np
 import optax
 from evosax.algorithms.population_based.base import PopulationBasedAlgorithm
 
+from .._xla_flags import fast_compile_options
 from ..errors import ConfigError
 from ..kinematics import Links, forward_kinematics
 from ..objective import (Cloud, ObjectiveConfig, Observation, cloud_centre, cloud_spread, num_blocks, observe,
@@ -43,7 +45,7 @@ class FitConfig:
         algorithm: ``"ga"`` (branch-swap GA), ``"hc"`` (hill climbing) or the name
             of any evosax strategy (e.g. ``"cma_es"``).
         population: individuals evaluated per generation.
-        generations: number of generations.
+        generations: number of generations; the first evaluates the initial population.
         chunk: generations per compiled chunk (progress granularity) when
             ``memetic_every`` is 0.
         std_init, std_final: mutation / sampling step in normalised genome units,
@@ -57,7 +59,8 @@ class FitConfig:
             0.53 -> 0.70, final cost 0.096 -> 0.071, the truth's 0.060).
         elite_ratio: fraction of the population that may become parents.
         memetic_every: every this many generations, refine the ``memetic_top`` best
-            individuals by ``memetic_steps`` Adam steps (0: never).
+            individuals by ``memetic_steps`` Adam steps (0: never); a step is one
+            evaluation of the cost and its gradient (:func:`~jaxpose.search.refine.refine`).
         final_refine_steps: Adam steps at the end (0: none) on the ``final_refine_top`` best
             individuals (the GA) or on the best point (other algorithms).  When
             ``final_refine_top == memetic_top`` (the default) the final refinement
@@ -198,7 +201,10 @@ class FitResult(NamedTuple):
 
 class SearchState(NamedTuple):
     """The search between compiled pieces.  With islands, every field but ``obs`` and
-    ``bounds`` (the same for all islands, stored once) has a leading island axis."""
+    ``bounds`` (the same for all islands, stored once) has a leading island axis.
+
+    ``initial`` is the initial population; the first generation evaluates it (while
+    ``objective_evaluations`` is 0, ``algo_state`` is a placeholder)."""
 
     algo_state: Any
     key: jax.Array
@@ -206,6 +212,7 @@ class SearchState(NamedTuple):
     bounds: Bounds
     objective_evaluations: jax.Array
     gradient_evaluations: jax.Array
+    initial: jax.Array
 
 
 # --------------------------------------------------------------------------- pieces
@@ -456,21 +463,31 @@ def _lock(skel: Skeleton, config: FitConfig, bounds: Bounds, generation, genomes
 
 def _search_init1(obs: Observation, bounds: Bounds, rest: RestModel, skel: Skeleton, key: jax.Array,
                   config: FitConfig) -> SearchState:
-    cloud = obs.cloud
+    """The initial population and a placeholder state of the algorithm: nothing is
+    evaluated here (see :func:`_start`), so this program does not compile the cost."""
     algo, params = _make_algorithm(skel, config)
     k_pop, k_init, k_run = jax.random.split(key, 3)
     pop0 = _lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config, rest))
-    fit0 = _population_cost_fn(skel, obs, bounds, config)(pop0, _blocks_at(config, cloud.points.shape[0], 0))
-    if isinstance(algo, PopulationBasedAlgorithm):  # the GA, PSO, DE, evosax's SimpleGA, ...
-        state = algo.init(k_init, pop0, fit0, params)
-    else:  # distribution-based (hill climbing, CMA-ES, ...): start at the best initial individual
-        best = jnp.argmin(fit0)
-        state = algo.init(k_init, pop0[best], params)
+    unknown = jnp.full(pop0.shape[:1], jnp.inf, pop0.dtype)
+    state = _start(algo, params, k_init, pop0, unknown).replace(generation_counter=0)
+    zero = jnp.asarray(0, jnp.int32)
+    return SearchState(state, k_run, obs, bounds, zero, zero, pop0)
+
+
+def _start(algo, params, key, pop0, fit0):
+    """The algorithm's state after evaluating the initial population ``pop0`` (costs
+    ``fit0``): a population-based algorithm (the GA, PSO, DE, ...) starts from it; a
+    distribution-based one (hill climbing, CMA-ES, ...) at its best individual.
+    This counts as the first generation."""
+    if isinstance(algo, PopulationBasedAlgorithm):
+        state = algo.init(key, pop0, fit0, params)
+    else:
+        best = jnp.argmin(jnp.where(jnp.isnan(fit0), jnp.inf, fit0))
+        state = algo.init(key, pop0[best], params)
         state = state.replace(best_solution=pop0[best], best_fitness=fit0[best])
         if hasattr(state, "best_fitness_shaped"):  # hill climbing moves only to better points
             state = state.replace(best_solution_shaped=pop0[best], best_fitness_shaped=fit0[best])
-    P = config.population
-    return SearchState(state, k_run, obs, bounds, jnp.asarray(P, jnp.int32), jnp.asarray(0, jnp.int32))
+    return state.replace(generation_counter=1)
 
 
 def _refine_rows(skel: Skeleton, config: FitConfig, obs: Observation, bounds: Bounds, gen, cand, steps):
@@ -561,12 +578,7 @@ def _memetic_apply1(skel: Skeleton, config: FitConfig, st: SearchState, order, g
         best_solution=lock(best_g),
         best_fitness=best_f,
     )
-    m = g.shape[0]
-    return st._replace(
-        algo_state=state,
-        objective_evaluations=st.objective_evaluations + m,
-        gradient_evaluations=st.gradient_evaluations + m * config.memetic_steps,
-    )
+    return st._replace(algo_state=state, gradient_evaluations=st.gradient_evaluations + g.shape[0] * config.memetic_steps)
 
 
 def memetic_apply(skel: Skeleton, config: FitConfig, st: SearchState, refined, history):
@@ -580,17 +592,22 @@ def _generations1(skel: Skeleton, config: FitConfig, st: SearchState, length: in
     algo, params = _make_algorithm(skel, config)
     pop_cost = _population_cost_fn(skel, st.obs, st.bounds, config)
     n_points = st.obs.cloud.points.shape[0]
+    unevaluated = st.objective_evaluations == 0  # this program starts the search
 
-    def generation(carry, _):
+    def generation(carry, i):
         state, key = carry
         key, k_ask, k_tell = jax.random.split(key, 3)
-        pop, state = algo.ask(k_ask, state, params)
+        pop, asked = algo.ask(k_ask, state, params)
         pop = _lock(skel, config, st.bounds, state.generation_counter, pop)
+        first = unevaluated & (i == 0)
+        pop = jnp.where(first, st.initial, pop)
         fitness = pop_cost(pop, _blocks_at(config, n_points, state.generation_counter))
-        state, _ = algo.tell(k_tell, pop, fitness, state, params)
+        told, _ = algo.tell(k_tell, pop, fitness, asked, params)
+        started = _start(algo, params, k_tell, pop, fitness)
+        state = jax.tree_util.tree_map(lambda a, b: jnp.where(first, a, b), started, told)
         return (state, key), state.best_fitness
 
-    (state, key), hist = jax.lax.scan(generation, (st.algo_state, st.key), None, length=length)
+    (state, key), hist = jax.lax.scan(generation, (st.algo_state, st.key), jnp.arange(length))
     evals = st.objective_evaluations + length * config.population
     return st._replace(algo_state=state, key=key, objective_evaluations=evals), hist
 
@@ -675,7 +692,6 @@ def _finish1(config: FitConfig, st: SearchState, refined):
     evals, grads = st.objective_evaluations, st.gradient_evaluations
     if refined is not None:
         _, g, f = refined
-        evals = evals + g.shape[0]
         grads = grads + g.shape[0] * config.final_refine_steps
         best_g, best_f = _keep_better(g, f, best_g, best_f)
     return best_g, best_f, evals, grads
@@ -728,11 +744,15 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
     return search_finish(cloud, skeleton, config, st, jnp.concatenate(hists))
 
 
-_init_jit = jax.jit(search_init, static_argnames="config")
+# the programs that run once or a few times per fit compile with options that compile
+# faster (same run time, numbers equal up to round-off: see jaxpose/_xla_flags.py); the generation loop
+# keeps XLA's defaults, which run it faster
+_once = fast_compile_options()
+_init_jit = jax.jit(search_init, static_argnames="config", compiler_options=_once)
 _generations_jit = jax.jit(search_generations, static_argnames=("config", "length"))
-_refine_jit = jax.jit(refine_top, static_argnames=("config", "m"))
-_memetic_apply_jit = jax.jit(memetic_apply, static_argnames="config")
-_result_jit = jax.jit(search_result, static_argnames="config")
+_refine_jit = jax.jit(refine_top, static_argnames=("config", "m"), compiler_options=_once)
+_memetic_apply_jit = jax.jit(memetic_apply, static_argnames="config", compiler_options=_once)
+_result_jit = jax.jit(search_result, static_argnames="config", compiler_options=_once)
 
 
 def _epoch_jit(skel: Skeleton, config: FitConfig, st: SearchState, length: int):

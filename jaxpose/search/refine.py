@@ -8,14 +8,18 @@ import optax
 
 
 def refine(population_loss, genomes: jax.Array, steps, learning_rate: float) -> tuple[jax.Array, jax.Array]:
-    """``steps`` Adam steps on each row of ``genomes (m, D)``.
+    """Adam on each row of ``genomes (m, D)``: ``steps`` evaluations of the loss and
+    its gradient, at the start and after each of the first ``steps - 1`` updates.
 
     ``population_loss(genomes (m, D)) -> (m,)`` scores rows independently (a
     population cost), so the gradient of its sum is every row's own gradient.
     ``steps`` may be a traced integer: one compiled program serves any count.
-    Genes stay in ``[0, 1]`` (projected after every step).  Returns the refined
-    genomes and their losses.  The best iterate of each row is kept, so refinement
-    never makes an individual worse.
+    Genes stay in ``[0, 1]`` (projected after every step).  Returns the best
+    evaluated iterate of each row and its loss, so refinement never makes an
+    individual worse (the start is the first iterate).  The last update is not
+    taken: scoring it would need a forward-only copy of the loss in the program,
+    which costs more to compile than the step is worth.  (``steps = 0``: the rows
+    come back unchanged, with loss ``+inf``.)
     """
     opt = optax.adam(learning_rate)
 
@@ -37,7 +41,5 @@ def refine(population_loss, genomes: jax.Array, steps, learning_rate: float) -> 
         return g, opt_state, best_g, best_f
 
     init = (genomes, opt.init(genomes), genomes, jnp.full(genomes.shape[:1], jnp.inf, genomes.dtype))
-    g, _, best_g, best_f = jax.lax.fori_loop(0, steps, step, init)
-    f_last = population_loss(g)
-    better = f_last < best_f
-    return jnp.where(better[:, None], g, best_g), jnp.where(better, f_last, best_f)
+    _, _, best_g, best_f = jax.lax.fori_loop(0, steps, step, init)
+    return best_g, best_f
