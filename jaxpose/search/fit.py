@@ -578,7 +578,8 @@ def _memetic_apply1(skel: Skeleton, config: FitConfig, st: SearchState, order, g
         best_solution=lock(best_g),
         best_fitness=best_f,
     )
-    return st._replace(algo_state=state, gradient_evaluations=st.gradient_evaluations + g.shape[0] * config.memetic_steps)
+    grads = st.gradient_evaluations + g.shape[0] * config.memetic_steps
+    return st._replace(algo_state=state, gradient_evaluations=grads)
 
 
 def memetic_apply(skel: Skeleton, config: FitConfig, st: SearchState, refined, history):
