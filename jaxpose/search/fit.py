@@ -33,7 +33,7 @@ from ..objective import (Cloud, ObjectiveConfig, Observation, cloud_centre, clou
                          population_cost)
 from ..skeleton import Bounds, Pose, Skeleton, axis_angle_matrix, decode, encode, genome_bounds, genome_layout, rest_pose
 from .baselines import BoundedHillClimbing, evosax_strategy
-from .ga import BranchSwapGA, subtree_masks
+from .ga import BranchSwapGA, subtree_masks, uniform_and_normal
 from .refine import refine
 
 
@@ -407,11 +407,9 @@ def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, co
     rest = rest or rest_model(skel)
     layout = genome_layout(skel)
     P, D = config.population, layout.size
-    # two draws for everything (each random draw is a sizeable program to compile);
-    # the root-translation and length genes are disjoint, so they share one normal array
-    k_u, k_z = jax.random.split(key)
-    u = jax.random.uniform(k_u, (P, D + 3))
-    z = jax.random.normal(k_z, (P, D + 7))
+    # one draw for everything (each random draw is a sizeable program to compile); the
+    # root-translation and length genes are disjoint, so they share one normal array
+    u, z = uniform_and_normal(key, (P, D + 3), D + 7)
     g = u[:, :D]
     names = layout.names
     root_t = np.array([n in ("root_tx", "root_ty", "root_tz") for n in names])
@@ -461,12 +459,13 @@ def _lock(skel: Skeleton, config: FitConfig, bounds: Bounds, generation, genomes
     return jnp.where(_unlocked(skel, config, generation), genomes, rest)
 
 
-def _search_init1(obs: Observation, bounds: Bounds, rest: RestModel, skel: Skeleton, key: jax.Array,
+def _search_init1(obs: Observation, bounds: Bounds, rest: RestModel, skel: Skeleton, keys: jax.Array,
                   config: FitConfig) -> SearchState:
     """The initial population and a placeholder state of the algorithm: nothing is
-    evaluated here (see :func:`_start`), so this program does not compile the cost."""
+    evaluated here (see :func:`_start`), so this program does not compile the cost.
+    ``keys (3,)``: for the population, the algorithm's init, and the search."""
     algo, params = _make_algorithm(skel, config)
-    k_pop, k_init, k_run = jax.random.split(key, 3)
+    k_pop, k_init, k_run = keys
     pop0 = _lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config, rest))
     unknown = jnp.full(pop0.shape[:1], jnp.inf, pop0.dtype)
     state = _start(algo, params, k_init, pop0, unknown).replace(generation_counter=0)
@@ -589,24 +588,41 @@ def memetic_apply(skel: Skeleton, config: FitConfig, st: SearchState, refined, h
     return st, history.at[-1].set(jnp.min(st.algo_state.best_fitness))
 
 
-def _generations1(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
+def _island_map(config: FitConfig, fn):
+    """``fn`` vmapped over the leading island axis when ``config.islands > 1``."""
+    return fn if config.islands == 1 else jax.vmap(fn)
+
+
+def _generations(skel: Skeleton, config: FitConfig, st: SearchState, length: int):
+    """``length`` generations of every island.  The scan runs over generations and
+    only the algorithm's ``ask`` and ``tell`` are vmapped over the islands: every
+    island's children are scored in one call of the cost on ``(islands * P, D)``
+    genomes (a vmapped scan would trace and batch the whole cost kernel, the
+    larger program to compile)."""
     algo, params = _make_algorithm(skel, config)
     pop_cost = _population_cost_fn(skel, st.obs, st.bounds, config)
     n_points = st.obs.cloud.points.shape[0]
     unevaluated = st.objective_evaluations == 0  # this program starts the search
+    lock = partial(_lock, skel, config, st.bounds)
+
+    def ask1(state, key, initial, first):
+        key, k_ask, k_tell = jax.random.split(key, 3)
+        pop, asked = algo.ask(k_ask, state, params)
+        return jnp.where(first, initial, lock(state.generation_counter, pop)), asked, key, k_tell
+
+    def tell1(k_tell, pop, fitness, asked, first):
+        told, _ = algo.tell(k_tell, pop, fitness, asked, params)
+        started = _start(algo, params, k_tell, pop, fitness)
+        return jax.tree_util.tree_map(lambda a, b: jnp.where(first, a, b), started, told)
 
     def generation(carry, i):
         state, key = carry
-        key, k_ask, k_tell = jax.random.split(key, 3)
-        pop, asked = algo.ask(k_ask, state, params)
-        pop = _lock(skel, config, st.bounds, state.generation_counter, pop)
         first = unevaluated & (i == 0)
-        pop = jnp.where(first, st.initial, pop)
-        fitness = pop_cost(pop, _blocks_at(config, n_points, state.generation_counter))
-        told, _ = algo.tell(k_tell, pop, fitness, asked, params)
-        started = _start(algo, params, k_tell, pop, fitness)
-        state = jax.tree_util.tree_map(lambda a, b: jnp.where(first, a, b), started, told)
-        return (state, key), state.best_fitness
+        pop, asked, key, k_tell = _island_map(config, ask1)(state, key, st.initial, first)
+        gen = state.generation_counter.reshape(-1)[0]
+        fitness = pop_cost(pop.reshape(-1, pop.shape[-1]), _blocks_at(config, n_points, gen))
+        state = _island_map(config, tell1)(k_tell, pop, fitness.reshape(pop.shape[:-1]), asked, first)
+        return (state, key), jnp.min(state.best_fitness)
 
     (state, key), hist = jax.lax.scan(generation, (st.algo_state, st.key), jnp.arange(length))
     evals = st.objective_evaluations + length * config.population
@@ -619,9 +635,10 @@ def search_init(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig)
     rest = rest_model(skel)
     bounds = search_bounds(skel, obs, config, rest)
     if config.islands == 1:
-        return _search_init1(obs, bounds, rest, skel, key, config)
+        return _search_init1(obs, bounds, rest, skel, jax.random.split(key, 3), config)
+    # every island's keys in one draw (each draw is a sizeable program to compile)
     return _vmap_shared(obs, bounds, lambda k: _search_init1(obs, bounds, rest, skel, k, config),
-                        jax.random.split(key, config.islands))
+                        jax.random.split(key, (config.islands, 3)))
 
 
 def halving_generations(config: FitConfig) -> tuple[int, ...]:
@@ -657,8 +674,7 @@ def search_generations(skel: Skeleton, config: FitConfig, st: SearchState, lengt
     ``length`` generations (no refinement).  Returns the new state and the best cost
     (over all islands) after each generation ``(length,)``."""
     st = rescore_at_switch(skel, config, halve_islands(config, st))
-    st, hist = _per_island(config, lambda s: _generations1(skel, config, s, length), st)
-    return st, (hist if config.islands == 1 else jnp.min(hist, 0))
+    return _generations(skel, config, st, length)
 
 
 def search_epoch(skel: Skeleton, config: FitConfig, st: SearchState, length: int,
