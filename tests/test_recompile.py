@@ -142,3 +142,24 @@ def test_fast_compile_options_change_no_number(skeleton):
     before = np.take_along_axis(np.asarray(st.algo_state.population), np.asarray(got[0])[..., None], 1)
     assert not np.allclose(np.asarray(got[1]), before)  # the refinement moved the candidates
     assert fast_compile_options() is None or fit_module._once == fast_compile_options()
+
+
+def test_pieces_compiled_ahead_give_what_the_jit_pieces_give(skeleton):
+    """``Fitter`` runs the pieces ``compile_pieces`` compiled ahead of time (in worker
+    threads); stepping the ``_*_jit`` functions by hand gives the same fit bit for
+    bit, with an epoch of a different length at the end (a second generation and
+    write-back program) and the memetic and final refinements."""
+    cfg = config(generations=5, memetic_every=EPOCH, memetic_top=2, memetic_steps=2, final_refine_top=2,
+                 final_refine_steps=3, population=8, islands=2)
+    c, key = cloud(6, 80), jax.random.key(7)
+    got = Fitter(skeleton, cfg).run(c, key)
+    st = fit_module._init_jit(c, skeleton, key, cfg)
+    hists = []
+    for length in (EPOCH, EPOCH, 1):
+        st, h = fit_module._epoch_jit(skeleton, cfg, st, length)
+        hists.append(h)
+    want = fit_module._finish_jit(c, skeleton, cfg, st, jax.numpy.concatenate(hists))
+    for name in ("genome", "cost", "history", "objective_evaluations", "gradient_evaluations"):
+        np.testing.assert_array_equal(np.asarray(getattr(got, name)), np.asarray(getattr(want, name)), err_msg=name)
+    # a memetic step after each of the three epochs and the final refinement: 2 islands x 2 candidates each
+    assert int(got.gradient_evaluations) == 3 * (2 * 2 * 2) + 2 * 2 * 3
