@@ -572,7 +572,7 @@ def config_key(L, N, P) -> str:
 
 
 E2E_PRESETS = {
-    # the shipped defaults (population 256, 300 generations, memetic refinement, final refinement)
+    # the shipped defaults (FitConfig(): islands, memetic and final refinement)
     "default": dict(),
     # small and without gradient refinement: compiles in a fraction of the time
     "quick": dict(population=128, generations=40, chunk=10, memetic_every=0, final_refine_steps=0),
@@ -592,13 +592,14 @@ def fit_traced(skel, config, cloud, key):
     F = _fit_module()
     cloud = Cloud(jnp.asarray(cloud.points, jnp.float32), jnp.asarray(cloud.weights, jnp.float32))
     snaps = []
-    if all(hasattr(F, n) for n in ("_init_jit", "_epoch_jit", "_finish_jit", "_epochs")):
+    if all(hasattr(F, n) for n in ("_programs", "_epochs")):
         t0 = time.perf_counter()
-        st = F._init_jit(cloud, skel, key, config)
+        pieces = F._programs(cloud, skel, key, config)  # Fitter's compiled pieces (compiled now when cold)
+        st = pieces.init(cloud, skel, key)
         E, n_full, rem = F._epochs(config)
         hists, gen = [], 0
         for length in [E] * n_full + ([rem] if rem else []):
-            st, h = F._epoch_jit(skel, config, st, length)
+            st, h = pieces.epoch(skel, config, st, length)
             hists.append(h)
             gen += length
             best = float(h[-1])  # synchronises, as Fitter's progress report does
@@ -606,7 +607,7 @@ def fit_traced(skel, config, cloud, key):
                               evaluations=(st.objective_evaluations, st.gradient_evaluations),
                               genome=st.algo_state.best_solution, fitness=st.algo_state.best_fitness,
                               bounds=st.bounds))
-        res = jax.block_until_ready(F._finish_jit(cloud, skel, config, st, jnp.concatenate(hists)))
+        res = jax.block_until_ready(pieces.finish(cloud, skel, config, st, jnp.concatenate(hists)))
         wall = time.perf_counter() - t0
     else:
         from jaxpose.search import Fitter

@@ -509,17 +509,26 @@ def test_ga_beats_the_rest_pose_at_the_cloud_centre():
 # --------------------------------------------------------------------------- internals: known defects
 
 
+def compiled(cloud, skel, key, config):
+    """``(cloud, programs)``: the compiled pieces ``Fitter`` runs for this fit (reused
+    when an earlier fit of the same signature compiled them)."""
+    cloud = fit_module._float32(cloud)
+    return cloud, fit_module._programs(cloud, skel, key, config)
+
+
 def test_hill_climber_never_moves_to_a_worse_point():
-    st = fit_module._init_jit(spider_cloud(), skeleton(), jax.random.key(0), HC)
-    st, _ = fit_module._epoch_jit(skeleton(), HC, st, HC.chunk)  # the executables fit_cloud(HC) compiled
+    cloud, pieces = compiled(spider_cloud(), skeleton(), jax.random.key(0), HC)  # those fit_cloud(HC) compiled
+    st = pieces.init(cloud, skeleton(), jax.random.key(0))
+    st, _ = pieces.epoch(skeleton(), HC, st, HC.chunk)
     a = st.algo_state
     np.testing.assert_array_equal(np.asarray(a.mean), np.asarray(a.best_solution))
 
 
 def test_ga_final_refinement_candidates_are_distinct(monkeypatch):
-    st = fit_module._init_jit(spider_cloud(), skeleton(), jax.random.key(0), GA)
+    cloud, pieces = compiled(spider_cloud(), skeleton(), jax.random.key(0), GA)
+    st = pieces.init(cloud, skeleton(), jax.random.key(0))
     for _ in range(GA.generations // GA.epoch):
-        st, h = fit_module._epoch_jit(skeleton(), GA, st, GA.epoch)
+        st, h = pieces.epoch(skeleton(), GA, st, GA.epoch)
     seen = []
 
     def spy(loss_fn, genomes, steps, learning_rate):
@@ -593,10 +602,12 @@ def test_halving_copies_the_better_half_of_the_islands_and_keeps_their_keys():
     each; keys and evaluation counts stay per island."""
     skel, cloud = skeleton(), spider_cloud()
     plain = dataclasses.replace(HALVING, halve_islands_at=())
-    st = fit_module._init_jit(cloud, skel, jax.random.key(3), HALVING)
-    st, _ = fit_module._epoch_jit(skel, HALVING, st, 2)  # generation 0 -> 2: no halving yet
-    st_plain = fit_module._init_jit(cloud, skel, jax.random.key(3), plain)
-    st_plain, _ = fit_module._epoch_jit(skel, plain, st_plain, 2)
+    cloud, pieces = compiled(cloud, skel, jax.random.key(3), HALVING)
+    _, plain_pieces = compiled(cloud, skel, jax.random.key(3), plain)
+    st = pieces.init(cloud, skel, jax.random.key(3))
+    st, _ = pieces.epoch(skel, HALVING, st, 2)  # generation 0 -> 2: no halving yet
+    st_plain = plain_pieces.init(cloud, skel, jax.random.key(3))
+    st_plain, _ = plain_pieces.epoch(skel, plain, st_plain, 2)
     np.testing.assert_array_equal(np.asarray(st.algo_state.population), np.asarray(st_plain.algo_state.population))
     halved = fit_module.halve_islands(HALVING, st)
     kept = fit_module.halve_islands(plain, st)
@@ -616,8 +627,8 @@ def test_halving_copies_the_better_half_of_the_islands_and_keeps_their_keys():
     np.testing.assert_array_equal(jax.random.key_data(halved.key), jax.random.key_data(st.key))
     np.testing.assert_array_equal(np.asarray(halved.objective_evaluations), np.asarray(st.objective_evaluations))
     # the compiled epoch halves at its start when the generation count says so
-    st2, _ = fit_module._epoch_jit(skel, HALVING, st, 2)
-    ref, _ = fit_module._epoch_jit(skel, plain, halved, 2)
+    st2, _ = pieces.epoch(skel, HALVING, st, 2)
+    ref, _ = plain_pieces.epoch(skel, plain, halved, 2)
     np.testing.assert_array_equal(np.asarray(st2.algo_state.population), np.asarray(ref.algo_state.population))
 
 

@@ -860,6 +860,8 @@ _MAX_PROGRAMS = 8
 
 
 def _programs(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -> _Programs:
+    """The compiled pieces for this fit (``cloud``: float32, see :func:`_float32`), from
+    the cache or compiled now."""
     sig = _signature(cloud, skel, key, config)
     if sig in _PROGRAMS:
         _PROGRAMS.move_to_end(sig)
@@ -868,6 +870,10 @@ def _programs(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig) -
         while len(_PROGRAMS) > _MAX_PROGRAMS:
             _PROGRAMS.popitem(last=False)
     return _PROGRAMS[sig]
+
+
+def _float32(cloud: Cloud) -> Cloud:
+    return Cloud(jnp.asarray(cloud.points, jnp.float32), jnp.asarray(cloud.weights, jnp.float32))
 
 
 class Fitter:
@@ -883,7 +889,7 @@ class Fitter:
         self.config = config.validate()
 
     def run(self, cloud: Cloud, key: jax.Array, progress=None) -> FitResult:
-        cloud = Cloud(jnp.asarray(cloud.points, jnp.float32), jnp.asarray(cloud.weights, jnp.float32))
+        cloud = _float32(cloud)
         t0 = time.perf_counter()
         skel, config = self.skeleton, self.config
         programs = _programs(cloud, skel, key, config)
