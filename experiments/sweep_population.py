@@ -46,6 +46,9 @@ def parse_args(argv=None):
     ap.add_argument("--seconds", type=float,
                     help="wall-time budget T per fit (default: the median wall time of the fixed-budget fits "
                          f"at the population nearest {d.population}, per model)")
+    ap.add_argument("--islands", type=int, default=d.islands,
+                    help=f"islands per fit; the population and the budget are per island (default {d.islands}; "
+                         "1: one population, as in the paper)")
     ap.add_argument("--images", nargs="+", metavar="N|NAME", help="images per model: a count or names (default 4)")
     ap.add_argument("--seeds", type=int, help="seeds 0..N-1 (default 3)")
     ap.add_argument("--quick", action="store_true",
@@ -61,15 +64,15 @@ def parse_args(argv=None):
     args.images = C.parse_images_arg(args.images) if args.images else q["images"]
     args.seeds = args.seeds if args.seeds is not None else q["seeds"]
     args.budget = args.budget if args.budget is not None else q["budget"]
-    if args.seeds < 1 or args.budget < 1 or min(args.populations) < 2:
-        ap.error("--seeds, --budget must be >= 1 and populations >= 2")
+    if args.seeds < 1 or args.budget < 1 or args.islands < 1 or min(args.populations) < 2:
+        ap.error("--seeds, --budget, --islands must be >= 1 and populations >= 2")
     args.out = args.out or (os.path.join(OUT, "quick") if args.quick else OUT)
     return args
 
 
-def evals_config(algorithm: str, population: int, budget: int) -> FitConfig:
+def evals_config(algorithm: str, population: int, budget: int, islands: int = FitConfig.islands) -> FitConfig:
     return C.make_config(FitConfig(), {"algorithm": algorithm, "population": population,
-                                       "generations": max(1, budget // population)})
+                                       "generations": max(1, budget // population), "islands": islands})
 
 
 def timing_model(rec: dict) -> tuple[float, float]:
@@ -118,7 +121,7 @@ class Sweep:
 
     def probe(self, ds, algorithm, population) -> list[dict]:
         """Warm fixed-budget fits of this population (runs the first one when none is stored)."""
-        cfg = evals_config(algorithm, population, self.args.budget)
+        cfg = evals_config(algorithm, population, self.args.budget, self.args.islands)
         recs = [self.store.get(self.runner.keys(ds, e["name"], f"{algorithm}-P{population}", cfg, s)[0])
                 for s in self.seeds for e in self.images[ds.model]]
         recs = [r for r in recs if r]
@@ -132,7 +135,7 @@ class Sweep:
             return self.args.seconds, {"given": True}
         d = FitConfig().population
         p_ref = min(self.args.populations, key=lambda p: (abs(math.log(p / d)), p))
-        cfg = evals_config(algorithm, p_ref, self.args.budget)
+        cfg = evals_config(algorithm, p_ref, self.args.budget, self.args.islands)
         key = C.run_key("plan", ds.model, algorithm, "seconds-auto", C.run_fingerprint(ds, cfg))
         plan = self.store.get(key)
         if plan is None:
@@ -143,7 +146,7 @@ class Sweep:
         return plan["seconds"], plan
 
     def time_config(self, ds, algorithm, population, seconds, splan) -> tuple[FitConfig, dict]:
-        cfg_a = evals_config(algorithm, population, self.args.budget)
+        cfg_a = evals_config(algorithm, population, self.args.budget, self.args.islands)
         if splan.get("population") == population:  # T is this population's own time at the fixed budget
             return cfg_a, {"seconds": seconds, "generations": cfg_a.generations, "reference": True}
         key = C.run_key("plan", ds.model, algorithm, f"P{population}", f"T{seconds:.6g}",
@@ -163,13 +166,15 @@ class Sweep:
     def run(self):
         a = self.args
         C.log(f"{self.runner.total} fits: models {', '.join(a.models)}; algorithms {', '.join(a.algorithms)}; "
-              f"populations {a.populations}; modes {', '.join(a.modes)}; budget {a.budget}; "
+              f"populations {a.populations} x {a.islands} island(s); modes {', '.join(a.modes)}; "
+              f"budget {a.budget}; "
               f"{len(self.seeds)} seed(s)")
         for m, ds in self.datasets.items():
             for alg in a.algorithms:
                 if "evals" in a.modes:
                     for p in a.populations:
-                        self.fits(ds, alg, p, evals_config(alg, p, a.budget), "evals", {"budget": a.budget})
+                        cfg = evals_config(alg, p, a.budget, a.islands)
+                        self.fits(ds, alg, p, cfg, "evals", {"budget": a.budget})
                 if "time" in a.modes:
                     seconds, splan = self.target_seconds(ds, alg)
                     self.plans[f"{m}/{alg}/seconds"] = splan
@@ -191,9 +196,10 @@ def aggregate(sweep: Sweep) -> list[dict]:
         recs = [x["record"] for x in rows]
         acc = C.seed_stats(recs, lambda r: r["symmetric"]["pcp"])
         ds = sweep.datasets[model]
-        cfg = C.make_config(evals_config(alg, p, sweep.args.budget), {"generations": recs[0]["generations"]})
+        cfg = C.make_config(evals_config(alg, p, sweep.args.budget, sweep.args.islands),
+                            {"generations": recs[0]["generations"]})
         out.append({
-            "mode": mode, "model": model, "algorithm": alg, "population": p,
+            "mode": mode, "model": model, "algorithm": alg, "population": p, "islands": sweep.args.islands,
             "generations": recs[0]["generations"],
             "budget": rows[0].get("budget"), "target_seconds": rows[0].get("target_seconds"),
             "link_accuracy": acc["mean"], "link_accuracy_std": acc["std"],

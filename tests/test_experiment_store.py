@@ -87,3 +87,15 @@ def test_unreadable_stored_record_is_run_again(tmp_path):
     assert store.get("k") == {"a": 1}
     (tmp_path / "k.json").write_text("{not json")
     assert store.get("k") is None
+
+
+def test_sweep_islands_flag_sets_the_configs_islands():
+    import sweep_population as S
+
+    args = S.parse_args(["--islands", "1", "--quick"])
+    assert args.islands == 1
+    cfg = S.evals_config("ga", 16, args.budget, args.islands)
+    assert cfg.islands == 1 and cfg.population == 16 and cfg.generations == args.budget // 16
+    assert S.parse_args(["--quick"]).islands == FitConfig().islands  # the default: FitConfig's
+    with pytest.raises(SystemExit):
+        S.parse_args(["--islands", "0"])
