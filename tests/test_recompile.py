@@ -147,19 +147,17 @@ def test_fast_compile_options_change_no_number(skeleton):
 def test_pieces_compiled_ahead_give_what_the_jit_pieces_give(skeleton):
     """``Fitter`` runs the pieces ``compile_pieces`` compiled ahead of time (in worker
     threads); stepping the ``_*_jit`` functions by hand gives the same fit bit for
-    bit, with an epoch of a different length at the end (a second generation and
-    write-back program) and the memetic and final refinements."""
-    cfg = config(generations=5, memetic_every=EPOCH, memetic_top=2, memetic_steps=2, final_refine_top=2,
-                 final_refine_steps=3, population=8, islands=2)
+    bit.  (The config is the one above, whose jit pieces are compiled already.)"""
+    cfg = config(memetic_every=EPOCH, memetic_top=3, memetic_steps=2, population=9, islands=2)
     c, key = cloud(6, 80), jax.random.key(7)
     got = Fitter(skeleton, cfg).run(c, key)
     st = fit_module._init_jit(c, skeleton, key, cfg)
     hists = []
-    for length in (EPOCH, EPOCH, 1):
-        st, h = fit_module._epoch_jit(skeleton, cfg, st, length)
+    for _ in range(GENERATIONS // EPOCH):
+        st, h = fit_module._epoch_jit(skeleton, cfg, st, EPOCH)
         hists.append(h)
     want = fit_module._finish_jit(c, skeleton, cfg, st, jax.numpy.concatenate(hists))
     for name in ("genome", "cost", "history", "objective_evaluations", "gradient_evaluations"):
         np.testing.assert_array_equal(np.asarray(getattr(got, name)), np.asarray(getattr(want, name)), err_msg=name)
-    # a memetic step after each of the three epochs and the final refinement: 2 islands x 2 candidates each
-    assert int(got.gradient_evaluations) == 3 * (2 * 2 * 2) + 2 * 2 * 3
+    # a memetic step after each of the three epochs: 2 islands x 3 candidates x 2 steps
+    assert int(got.gradient_evaluations) == 3 * (2 * 3 * 2)
