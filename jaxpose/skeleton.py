@@ -97,6 +97,9 @@ class Skeleton:
     parents: tuple[int, ...] = field(metadata=dict(static=True), default=())
     joint_types: tuple[str, ...] = field(metadata=dict(static=True), default=())
     length_searched: tuple[bool, ...] = field(metadata=dict(static=True), default=())
+    # every link's symmetry orbit, named by its first link (:func:`jaxpose.symmetry.link_orbits`;
+    # set by build_skeleton; () = none known)
+    orbit: tuple[int, ...] = field(metadata=dict(static=True), default=())
 
     @property
     def num_links(self) -> int:
@@ -450,7 +453,7 @@ def build_skeleton(
         seg_dir[i] = d / n if n > 0 else np.array([1.0, 0.0, 0.0])
 
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
-    return Skeleton(
+    skel = Skeleton(
         offset=f32(offset), attach=f32(attach), rest_rotation=f32(rest), axis=f32(axis),
         angle_lo=f32(alo), angle_hi=f32(ahi), seg_start=f32(seg_start), seg_dir=f32(seg_dir),
         length=f32(length), length_lo=f32(llo), length_hi=f32(lhi), radius=f32(radius),
@@ -460,6 +463,13 @@ def build_skeleton(
         joint_types=tuple(l.joint for l in order),
         length_searched=tuple(bool(h > l) for l, h in zip(llo, lhi)),
     )
+    from .symmetry import link_orbits  # it needs this module's Skeleton
+
+    orbit = [0] * len(order)
+    for o in link_orbits(skel):
+        for i in o:
+            orbit[i] = o[0]
+    return dataclasses.replace(skel, orbit=tuple(orbit))
 
 
 def _vec3(v, what, link, fail):
