@@ -32,6 +32,7 @@ import pytest
 import jaxpose
 from jaxpose import Cloud, ObjectiveConfig, forward_kinematics, genome_layout, observe, population_cost, rest_pose
 from jaxpose.errors import ConfigError
+from jaxpose.metrics import link_orbits
 from jaxpose.search import BranchSwapGA, FitConfig, Fitter, branch_swap, fit, fit_cloud, mutate, subtree_masks
 from jaxpose.skeleton import ROOT_ANGLE_LIMITS, LinkSpec, build_skeleton
 
@@ -416,7 +417,7 @@ def test_baselines_spend_the_ga_search_budget(config):
 
 @pytest.mark.parametrize("bad", [
     dict(population=1), dict(population=0), dict(population=8.0), dict(generations=0), dict(generations=-3),
-    dict(algorithm="no_such_algorithm"), dict(islands=0),
+    dict(algorithm="no_such_algorithm"), dict(islands=0), dict(tie_lengths="yes"),
 ])
 def test_config_errors(bad):
     config = dataclasses.replace(GA, **bad)
@@ -490,6 +491,37 @@ def test_best_genome_lies_in_the_unit_box(config):
     g = np.asarray(run(config).genome)
     assert g.shape == (genome_layout(skeleton()).size,)
     assert g.min() >= 0.0 and g.max() <= 1.0
+
+
+def test_tie_lengths_gives_alike_links_one_length():
+    """tie_lengths: the spider's four upper and four lower legs each end with one length
+    (through the initial population, children, memetic steps and the final refinement);
+    without it they differ."""
+    skel = skeleton()
+    orbits = [o for o in link_orbits(skel) if len(o) > 1]
+    assert orbits  # the oracle: the metrics' symmetry groups
+    tied = np.asarray(run(dataclasses.replace(GA, tie_lengths=True)).pose.lengths)
+    free = np.asarray(run(GA).pose.lengths)
+    for o in orbits:
+        assert np.all(tied[list(o)] == tied[o[0]]), [skel.link_names[i] for i in o]
+    assert any(np.ptp(free[list(o)]) > 1e-4 for o in orbits)
+
+
+@pytest.mark.parametrize("name", ["spider", "humanoid", "arm7"])
+def test_tie_sets_the_length_genes_of_each_orbit_to_their_mean(name):
+    skel = skeleton(name)
+    layout = genome_layout(skel)
+    g = np.random.default_rng(0).uniform(size=(5, layout.size)).astype(np.float32)
+    tied = np.asarray(fit_module._tie(skel, jnp.asarray(g)))
+    want = g.copy()  # oracle: a loop over the orbits and their length genes by name
+    for o in link_orbits(skel):
+        idx = [layout.names.index(f"{skel.link_names[i]}.length") for i in o
+               if f"{skel.link_names[i]}.length" in layout.names]
+        want[:, idx] = g[:, idx].mean(1, keepdims=True)
+    np.testing.assert_allclose(tied, want, rtol=1e-6)
+    assert np.array_equal(np.asarray(fit_module._tie(skel, jnp.asarray(tied))), tied)  # a projection
+    changed = not np.array_equal(tied, g)
+    assert changed == (name != "arm7")  # the arm has no alike links
 
 
 # --------------------------------------------------------------------------- 10. accuracy smoke test

@@ -35,6 +35,9 @@ def register(sub) -> None:
     p.add_argument("--coarse-points", type=int, default=FitConfig.coarse_points,
                    help="coarse-to-fine (GA only): score on this many points during the first half of the "
                         "generations, then on all (default 0: off)")
+    p.add_argument("--tie-lengths", action="store_true",
+                   help="one length for alike links (left and right, a spider's legs; "
+                        "default: each searched on its own)")
     p.add_argument("--no-refine", action="store_true", help="no gradient refinement (memetic or final)")
     p.add_argument("--sigma-factor", type=float, default=ObjectiveConfig.sigma_factor,
                    help="sigma = this x the cloud's spread (1: the paper's objective; "
@@ -88,6 +91,7 @@ def config_from_args(args) -> FitConfig:
         generations=args.generations,
         islands=args.islands,
         coarse_points=args.coarse_points,
+        tie_lengths=args.tie_lengths,
         objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor),
     )
     if args.no_refine:

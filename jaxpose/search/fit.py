@@ -102,6 +102,14 @@ class FitConfig:
             rescores its population on all of them and goes on with all of them.
             Gradient refinement always uses every point.
         coarse_until: see ``coarse_points``.
+        tie_lengths: alike links (one orbit of the skeleton's symmetries,
+            ``Skeleton.orbit``: a humanoid's two forearms, a spider's legs) get one
+            length, the mean of their length genes, applied wherever genomes are made
+            (the initial population, every generation's children, refinement, the
+            result).  Off by default: on 32 rendered humanoid images it placed
+            fewer links correctly (88.1% against 89.9% untied, one seed), as a
+            branch swap or mutation of one limb's length then moves its mirror
+            too.  For a robot known to be symmetric it keeps the result so.
         objective: the cost's settings.
     """
 
@@ -131,6 +139,7 @@ class FitConfig:
     staged: float = 0.5
     coarse_points: int = 0
     coarse_until: float = 0.5
+    tie_lengths: bool = False
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
 
     def __post_init__(self):  # a list (from JSON, say) would not be hashable
@@ -161,6 +170,8 @@ class FitConfig:
             raise ConfigError(f"coarse_points works with the GA only, not {self.algorithm!r}")
         if not 0.0 < self.coarse_until < 1.0:
             raise ConfigError(f"coarse_until must lie in (0, 1), got {self.coarse_until}")
+        if not isinstance(self.tie_lengths, bool):
+            raise ConfigError(f"tie_lengths must be true or false, got {self.tie_lengths!r}")
         if not 0.0 <= self.staged <= 1.0:
             raise ConfigError(f"staged must lie in [0, 1], got {self.staged}")
         if not 0.0 <= self.init_pca_fraction <= 1.0:
@@ -453,8 +464,36 @@ def _unlocked(skel: Skeleton, config: FitConfig, generation) -> jax.Array:
     return jnp.asarray(levels) <= jnp.floor(generation / phase)
 
 
+def _length_orbits(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """Genes of searched lengths that alike links share (``Skeleton.orbit``), and each
+    one's orbit number: ``(genes (T,), orbit (T,))``, empty when there are none."""
+    layout = genome_layout(skel)
+    gene_of = {layout.link_of_gene[k]: k for k, n in enumerate(layout.names) if n.endswith(".length")}
+    members: dict[int, list[int]] = {}
+    for i, o in enumerate(skel.orbit):
+        if i in gene_of:
+            members.setdefault(o, []).append(gene_of[i])
+    tied = [m for m in members.values() if len(m) > 1]
+    genes = [g for m in tied for g in m]
+    orbit = [k for k, m in enumerate(tied) for _ in m]
+    return np.asarray(genes, np.int32), np.asarray(orbit, np.int32)
+
+
+def _tie(skel: Skeleton, genomes):
+    """Length genes of alike links (a humanoid's two forearms, a spider's legs) set to their mean."""
+    genes, orbit = _length_orbits(skel)
+    if genes.size == 0:
+        return genomes
+    one_hot = jnp.asarray(orbit[:, None] == np.arange(orbit.max() + 1)[None], genomes.dtype)
+    mean = (genomes[..., genes] @ one_hot) / jnp.sum(one_hot, 0)
+    return genomes.at[..., genes].set(mean[..., orbit])
+
+
 def _lock(skel: Skeleton, config: FitConfig, bounds: Bounds, generation, genomes):
-    """Locked genes (staged search) set to their rest values."""
+    """Locked genes (staged search) set to their rest values; with ``tie_lengths``
+    the length genes of alike links set to their mean."""
+    if config.tie_lengths:
+        genomes = _tie(skel, genomes)
     if config.staged <= 0:
         return genomes
     rest = encode(skel, bounds, rest_pose(skel))
@@ -729,7 +768,7 @@ def search_result(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
         i = jnp.argmin(f)
         best_g, best_f, evals, grads = g[i], f[i], jnp.sum(e), jnp.sum(gr)
     bounds = st.bounds
-    best_g = jnp.clip(best_g, 0.0, 1.0)  # evosax strategies sample unbounded; decode clips the same way
+    best_g = _lock(skel, config, bounds, config.generations, jnp.clip(best_g, 0.0, 1.0))  # evosax strategies sample unbounded
     pose = decode(skel, bounds, best_g)
     links = forward_kinematics(skel, pose)
     n_dist = (evals + grads).astype(jnp.float32) * cloud.points.shape[0] * skel.num_links
