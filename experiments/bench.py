@@ -647,7 +647,7 @@ def run_e2e(name: str, args) -> dict:
     from jaxpose.search import FitConfig
 
     skel = get_skeleton(name)
-    config = FitConfig(**E2E_PRESETS[args.e2e_preset])
+    config = FitConfig(**E2E_PRESETS[args.e2e_preset]).for_skeleton(skel)  # generations resolved
     t = time.perf_counter()
     views, clouds = [], []
     for i in range(args.e2e_images):

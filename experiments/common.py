@@ -207,6 +207,8 @@ def planned_evaluations(config: FitConfig, n_points: int = DepthOptions.max_poin
     rescores its population and best (``P + 1``) once, on a cloud of ``n_points``;
     times ``islands``.  :meth:`FitRunner.run` compares this with every fit's actual counts.
     """
+    if config.generations is None:
+        raise ValueError("planned_evaluations: resolve the generations first (config.for_skeleton(skel))")
     P, G = config.population, config.generations
     obj, grad = G * P, 0
     if config.memetic_on:
@@ -278,6 +280,7 @@ def fit_image(ds: Dataset, img: Image, config: FitConfig, seed: int) -> dict:
     ``epoch_times`` holds ``[generation, seconds since the call]`` after every
     compiled chunk (the progress callback; it waits for the chunk's result).
     """
+    config = config.for_skeleton(ds.skeleton)
     epochs: list = []
     t0 = time.perf_counter()
 
@@ -367,11 +370,12 @@ class FitRunner:
         self.warned: set = set()
 
     def keys(self, ds: Dataset, image: str, label: str, config: FitConfig, seed: int) -> tuple[str, str]:
-        fp = run_fingerprint(ds, config)
+        fp = run_fingerprint(ds, config.for_skeleton(ds.skeleton))
         return run_key(ds.model, image, label, f"seed{seed}", fp), run_key("warmup", ds.model, label, fp)
 
     def run(self, ds: Dataset, entry: dict, label: str, config: FitConfig, seed: int, extra: dict | None = None,
             quiet_skip: bool = True) -> dict:
+        config = config.for_skeleton(ds.skeleton)  # generations resolved (FitConfig.generations=None: automatic)
         key, wkey = self.keys(ds, entry["name"], label, config, seed)
         self.done += 1
         rec = self.store.get(key)

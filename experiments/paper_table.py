@@ -77,11 +77,12 @@ def parse_args(argv=None):
     return args
 
 
-def variant_configs(args) -> tuple[dict, dict]:
-    """FitConfig of every selected row (budgets matched to BUDGET_REFERENCE) and the budget info."""
+def variant_configs(args, skel) -> tuple[dict, dict]:
+    """FitConfig of every selected row for one model's skeleton (generations resolved for
+    it, budgets matched to BUDGET_REFERENCE) and the budget info."""
     base = FitConfig()
     over = {k: v for k, v in (("population", args.population), ("generations", args.generations)) if v is not None}
-    base = C.make_config(base, over)
+    base = C.make_config(base, over).for_skeleton(skel)
     ref = C.make_config(base, VARIANTS[BUDGET_REFERENCE])
     target = C.planned_evaluations(ref)
     configs = {}
@@ -90,21 +91,20 @@ def variant_configs(args) -> tuple[dict, dict]:
         if name != BUDGET_REFERENCE:
             cfg = C.match_generations(cfg, target, args.match)
         configs[name] = cfg
-    budget = {"match": args.match, "reference": BUDGET_REFERENCE, "reference_planned": target,
-              "planned": {n: C.planned_evaluations(c) for n, c in configs.items()}}
+    budget = {"reference_planned": target, "planned": {n: C.planned_evaluations(c) for n, c in configs.items()}}
     return configs, budget
 
 
 def run_fits(args, datasets, images, configs) -> tuple[dict, C.FitRunner]:
     """Every (model, row, seed, image) fit, through the run store; returns records[model][row]."""
     seeds = list(range(args.seeds))
-    total = sum(len(images[m]) for m in datasets) * len(configs) * len(seeds)
+    total = sum(len(images[m]) * len(configs[m]) for m in datasets) * len(seeds)
     runner = C.FitRunner(C.RunStore(RUNS), total)
-    C.log(f"{total} fits: models {', '.join(datasets)}; rows {', '.join(configs)}; seeds {seeds}; "
-          + "; ".join(f"{n}: P={c.population} G={c.generations}" for n, c in configs.items()))
-    records: dict = {m: {n: [] for n in configs} for m in datasets}
+    C.log(f"{total} fits: models {', '.join(datasets)}; rows {', '.join(args.algorithms)}; seeds {seeds}; "
+          + "; ".join(f"{m} {n}: P={c.population} G={c.generations}" for m in datasets for n, c in configs[m].items()))
+    records: dict = {m: {n: [] for n in configs[m]} for m in datasets}
     for m, ds in datasets.items():
-        for name, cfg in configs.items():
+        for name, cfg in configs[m].items():
             for seed in seeds:
                 for entry in images[m]:
                     records[m][name].append(runner.run(ds, entry, name, cfg, seed))
@@ -119,7 +119,7 @@ def summarise(records, runner, datasets, configs) -> dict:
         out[m] = {}
         for name, recs in rows.items():
             acc = C.seed_stats(recs, lambda r: r["symmetric"]["pcp"])
-            warm = runner.warmup_record(datasets[m], name, configs[name])
+            warm = runner.warmup_record(datasets[m], name, configs[m][name])
             evals = sorted({r["objective_evaluations"] for r in recs})
             grads = sorted({r["gradient_evaluations"] for r in recs})
             out[m][name] = {
@@ -136,8 +136,8 @@ def summarise(records, runner, datasets, configs) -> dict:
                 "evaluations": evals[0] if len(evals) == 1 else evals,
                 "gradient_evaluations": grads[0] if len(grads) == 1 else grads,
                 "distance_evaluations": float(np.median([r["distance_evaluations"] for r in recs])),
-                "population": configs[name].population,
-                "generations": configs[name].generations,
+                "population": configs[m][name].population,
+                "generations": configs[m][name].generations,
                 "images": len({r["image"] for r in recs}),
                 "seeds": len({r["seed"] for r in recs}),
                 "fits": len(recs),
@@ -247,9 +247,12 @@ def figure(path, records, datasets, images, n_per_model):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    configs, budget = variant_configs(args)
     C.ensure_data(args.models, args.data)
     datasets = {m: C.load_dataset(m, args.data) for m in args.models}
+    configs, budget = {}, {"match": args.match, "reference": BUDGET_REFERENCE, "reference_planned": {}, "planned": {}}
+    for m, ds in datasets.items():  # the default generations depend on the skeleton (FitConfig.for_skeleton)
+        configs[m], b = variant_configs(args, ds.skeleton)
+        budget["reference_planned"][m], budget["planned"][m] = b["reference_planned"], b["planned"]
     images = {m: C.select_images(ds, args.images) for m, ds in datasets.items()}
     try:
         records, runner = run_fits(args, datasets, images, configs)
@@ -271,8 +274,8 @@ def main(argv=None) -> int:
         "seeds": list(range(args.seeds)),
         "budget": budget,
         "config": {
-            "variants": {n: VARIANTS[n] for n in configs},
-            "fit_config": {n: c.to_dict() for n, c in configs.items()},
+            "variants": {n: VARIANTS[n] for n in args.algorithms},
+            "fit_config": {m: {n: c.to_dict() for n, c in configs[m].items()} for m in configs},
             "depth_options": {m: C.depth_options_record(ds) for m, ds in datasets.items()},
         },
         "paper": PAPER,

@@ -2,7 +2,7 @@
 at a fixed wall-time budget, on a few images per model, several seeds.
 
 - fixed evaluations: ``generations = budget // population`` (budget default:
-  FitConfig's population x generations);
+  FitConfig's population x 300 generations, the humanoid's default fit, for every model);
 - fixed wall time: each population gets the generation count that makes a fit take
   about ``T`` seconds on this machine, from a timing probe (its fixed-evaluation fits:
   per-generation time and fixed cost read off the fit's progress callbacks; see
@@ -27,6 +27,7 @@ from jaxpose.search.fit import FitConfig
 
 POPULATIONS = (16, 64, 256, 1024, 4096)  # powers of 4
 MODES = ("evals", "time")
+DEFAULT_GENERATIONS = 300  # FitConfig's automatic count for the humanoid (its maximum)
 QUICK = {"populations": (16, 64, 256), "images": 2, "seeds": 1, "budget": 64 * 50}
 
 OUT = C.RESULTS_DIR
@@ -42,7 +43,8 @@ def parse_args(argv=None):
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES,
                     help="evals: fixed evaluation budget; time: fixed wall time (default both)")
     ap.add_argument("--budget", type=int, help=f"objective evaluations of the generations, population x "
-                                               f"generations (default {d.population} x {d.generations})")
+                                               f"generations (default {d.population} x {DEFAULT_GENERATIONS}, "
+                                               "the humanoid's default fit)")
     ap.add_argument("--seconds", type=float,
                     help="wall-time budget T per fit (default: the median wall time of the fixed-budget fits "
                          f"at the population nearest {d.population}, per model)")
@@ -59,7 +61,7 @@ def parse_args(argv=None):
     ap.add_argument("--out", help="output folder (default experiments/results, --quick: experiments/results/quick)")
     args = ap.parse_args(argv)
     q = QUICK if args.quick else {"populations": POPULATIONS, "images": 4, "seeds": 3,
-                                  "budget": d.population * d.generations}
+                                  "budget": d.population * DEFAULT_GENERATIONS}
     args.populations = sorted(set(args.populations or q["populations"]))
     args.images = C.parse_images_arg(args.images) if args.images else q["images"]
     args.seeds = args.seeds if args.seeds is not None else q["seeds"]

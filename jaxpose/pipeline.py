@@ -86,6 +86,14 @@ def load_observation(depth_path: str, options: DepthOptions = DepthOptions()):
     return depth, k, cloud
 
 
+def load_fit_skeleton(skeleton: str | Skeleton, search_lengths: bool = False) -> tuple[Skeleton, str | None]:
+    """The skeleton to fit and its file (``None`` for a :class:`Skeleton` object)."""
+    if isinstance(skeleton, Skeleton):
+        return skeleton, None
+    skel_file = resolve_skeleton_path(str(skeleton))
+    return load_skeleton(skel_file, search_lengths=search_lengths), skel_file
+
+
 def fit_depth_file(
     depth_path: str,
     skeleton: str | Skeleton,
@@ -101,12 +109,8 @@ def fit_depth_file(
     (see :func:`~jaxpose.io.skeleton_file.load_skeleton`)."""
     config.validate()
     options.validate()
-    skel_file = None
-    if isinstance(skeleton, Skeleton):
-        skel = skeleton
-    else:
-        skel_file = resolve_skeleton_path(str(skeleton))
-        skel = load_skeleton(skel_file, search_lengths=search_lengths)
+    skel, skel_file = load_fit_skeleton(skeleton, search_lengths)
+    config = config.for_skeleton(skel)  # the generations the fit runs, also in the result's record
     depth, k, cloud = load_observation(depth_path, options)
     result = fit_cloud(cloud, skel, seed, config, progress)
     if not (np.isfinite(float(result.cost)) and np.all(np.isfinite(np.asarray(result.links.end)))):

@@ -107,7 +107,9 @@ def test_demo_as_shipped(tmp_path):
     p = subprocess.run([sys.executable, "-m", "jaxpose.demo", "--out", str(out), "--quiet"],
                        capture_output=True, text=True, timeout=3600)
     assert p.returncode == 0, p.stderr
-    from jaxpose.search import FitConfig
+    from jaxpose import load_skeleton
+    from jaxpose.search import FitConfig, auto_generations
 
-    check_result(out, seed=0, population=FitConfig.population, generations=FitConfig.generations)
+    # the default generations, chosen for the spider (4 per gene: 156)
+    check_result(out, seed=0, population=FitConfig.population, generations=auto_generations(load_skeleton("spider")))
     assert "accuracy against the bundled ground truth" in p.stdout

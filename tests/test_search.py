@@ -415,6 +415,25 @@ def test_baselines_spend_the_ga_search_budget(config):
     assert float(res.cost) <= float(res.history[-1])
 
 
+@pytest.mark.parametrize("name, genes", [("spider", 7 + 8 * 4), ("humanoid", 75), ("arm7", 21), ("snake", 47)])
+def test_default_generations_are_chosen_per_skeleton(name, genes):
+    """generations=None (the default): 4 per searched gene within 100..300 (FitConfig's docstring);
+    the gene counts are the skeleton files' documented DOF."""
+    skel = skeleton(name)
+    assert genome_layout(skel).size == genes
+    want = min(300, max(100, 4 * genes))
+    assert FitConfig().generations is None
+    assert fit_module.auto_generations(skel) == want
+    assert FitConfig().for_skeleton(skel).generations == want
+    assert Fitter(skel, dataclasses.replace(GA, generations=None)).config == dataclasses.replace(GA, generations=want)
+    assert dataclasses.replace(GA, generations=7).for_skeleton(skel).generations == 7  # explicit: kept
+
+
+def test_search_pieces_want_resolved_generations():
+    with pytest.raises(ConfigError, match="for_skeleton"):
+        fit_module.search_init(spider_cloud(), skeleton(), jax.random.key(0), dataclasses.replace(GA, generations=None))
+
+
 @pytest.mark.parametrize("bad", [
     dict(population=1), dict(population=0), dict(population=8.0), dict(generations=0), dict(generations=-3),
     dict(algorithm="no_such_algorithm"), dict(islands=0), dict(tie_lengths="yes"),
