@@ -82,7 +82,8 @@ def main(argv=None) -> int:
             rows.append({"model": model, "max_points": n, "coarse_points": coarse,
                          "points_used": float(np.mean(pts)),
                          "link_accuracy": float(np.mean(pcp)), "seconds_per_image": float(np.median(secs)),
-                         "images": len(entries), "seed": a.seed, "generations": cfg.for_skeleton(ds.skeleton).generations})
+                         "images": len(entries), "seed": a.seed,
+                         "generations": cfg.for_skeleton(ds.skeleton).generations})
     out = {"rows": rows, "machine": C.machine_info(), "finished": C.now_iso()}
     C.write_json(os.path.join(a.out, "point_budget.json"), out)
     lines = ["| model | max_points | coarse_points (first half) | points used (mean) | link accuracy "

@@ -417,16 +417,26 @@ def test_baselines_spend_the_ga_search_budget(config):
 
 @pytest.mark.parametrize("name, genes", [("spider", 7 + 8 * 4), ("humanoid", 75), ("arm7", 21), ("snake", 47)])
 def test_default_generations_are_chosen_per_skeleton(name, genes):
-    """generations=None (the default): 4 per searched gene within 100..300 (FitConfig's docstring);
-    the gene counts are the skeleton files' documented DOF."""
+    """generations=None (the default): 4 per searched gene within 100..300, rounded to whole
+    epochs (FitConfig's docstring); the gene counts are the skeleton files' documented DOF."""
     skel = skeleton(name)
     assert genome_layout(skel).size == genes
-    want = min(300, max(100, 4 * genes))
+    want = {"spider": 150, "humanoid": 300, "arm7": 100, "snake": 200}[name]  # 156, 300, 84 -> 100, 188
+    assert want == 25 * round(min(300, max(100, 4 * genes)) / 25)
     assert FitConfig().generations is None
     assert fit_module.auto_generations(skel) == want
     assert FitConfig().for_skeleton(skel).generations == want
-    assert Fitter(skel, dataclasses.replace(GA, generations=None)).config == dataclasses.replace(GA, generations=want)
+    # GA's epoch is 2 generations: whole epochs of 2
+    g2 = 2 * round(min(300, max(100, 4 * genes)) / 2)
+    assert Fitter(skel, dataclasses.replace(GA, generations=None)).config == dataclasses.replace(GA, generations=g2)
     assert dataclasses.replace(GA, generations=7).for_skeleton(skel).generations == 7  # explicit: kept
+
+
+def test_pure_fit_resolves_the_generations_while_tracing():
+    """jit(fit) with generations=None traces a fit of the skeleton's automatic count (lowered, not compiled)."""
+    config = dataclasses.replace(GA, generations=None)
+    low = jax.jit(fit, static_argnames="config").lower(spider_cloud(), skeleton(), jax.random.key(0), config=config)
+    assert low.out_info.history.shape == (156,)  # 4 x 39 genes, in whole epochs of GA's 2 generations
 
 
 def test_search_pieces_want_resolved_generations():

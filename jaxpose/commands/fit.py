@@ -30,7 +30,8 @@ def register(sub) -> None:
     p.add_argument("--algorithm", default="ga", help="ga (default), hc, cma_es or another evosax strategy")
     p.add_argument("--population", type=int, default=FitConfig.population)
     p.add_argument("--generations", type=int, default=FitConfig.generations,
-                   help="generations (default: 4 per searched gene, within 100..300: spider 156, humanoid 300)")
+                   help="generations (default: 4 per searched gene, within 100..300 in whole epochs: "
+                        "spider 150, humanoid 300)")
     p.add_argument("--islands", type=int, default=FitConfig.islands,
                    help=f"independent populations searched side by side (default {FitConfig.islands})")
     p.add_argument("--coarse-points", type=int, default=FitConfig.coarse_points,
