@@ -175,6 +175,7 @@ def test_compilation_cache_folder(tmp_path, monkeypatch):
     from jaxpose.cli import enable_compilation_cache
 
     before = jax.config.jax_compilation_cache_dir
+    min_before = jax.config.jax_persistent_cache_min_compile_time_secs
     try:
         monkeypatch.setenv("JAXPOSE_CACHE_DIR", "0")
         assert enable_compilation_cache() is None
@@ -182,12 +183,14 @@ def test_compilation_cache_folder(tmp_path, monkeypatch):
         monkeypatch.setenv("JAXPOSE_CACHE_DIR", str(target))
         assert enable_compilation_cache() == str(target)
         assert target.is_dir() and jax.config.jax_compilation_cache_dir == str(target)
+        assert jax.config.jax_persistent_cache_min_compile_time_secs == 0.0  # every program is kept
         blocker = tmp_path / "file"
         blocker.write_text("x")
         monkeypatch.setenv("JAXPOSE_CACHE_DIR", str(blocker / "xla"))  # cannot be created: no cache, no error
         assert enable_compilation_cache() is None
     finally:
         jax.config.update("jax_compilation_cache_dir", before)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", min_before)
 
 
 def test_fit_options_reach_the_config():
