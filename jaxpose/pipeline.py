@@ -102,14 +102,17 @@ def fit_depth_file(
     options: DepthOptions = DepthOptions(),
     progress=None,
     search_lengths: bool = False,
+    skeleton_file: str | None = None,
 ) -> FitOutput:
     """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth file.
 
     ``search_lengths``: for a robot file given by path, search its capsule lengths
-    (see :func:`~jaxpose.io.skeleton_file.load_skeleton`)."""
+    (see :func:`~jaxpose.io.skeleton_file.load_skeleton`).  ``skeleton_file``: the file a
+    :class:`Skeleton` object was loaded from (:func:`load_fit_skeleton`), for the record."""
     config.validate()
     options.validate()
     skel, skel_file = load_fit_skeleton(skeleton, search_lengths)
+    skel_file = skel_file or skeleton_file
     config = config.for_skeleton(skel)  # the generations the fit runs, also in the result's record
     depth, k, cloud = load_observation(depth_path, options)
     result = fit_cloud(cloud, skel, seed, config, progress)

@@ -144,11 +144,12 @@ def run(args: argparse.Namespace) -> int:
         _pyplot()  # fail before the search if matplotlib is missing
     options = DepthOptions(args.intrinsics, args.depth_scale, args.near, args.far, args.background,
                            max_points=args.max_points)
-    config = config.for_skeleton(load_fit_skeleton(args.skeleton, args.search_lengths)[0])  # the bar's total
+    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths)
+    config = config.for_skeleton(skel)  # the generations: the bar's total
     bar = ProgressBar(config.generations, quiet=args.quiet)
     try:
-        out = fit_depth_file(args.depth, args.skeleton, config, args.seed, options, progress=bar.update,
-                             search_lengths=args.search_lengths)
+        out = fit_depth_file(args.depth, skel, config, args.seed, options, progress=bar.update,
+                             search_lengths=args.search_lengths, skeleton_file=skel_file)
     finally:
         bar.close()  # end the progress line, also before an error message or Ctrl-C
     write_json(args.out, out.document)
