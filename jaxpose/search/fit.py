@@ -803,8 +803,9 @@ def search_result(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
         i = jnp.argmin(f)
         best_g, best_f, evals, grads = g[i], f[i], jnp.sum(e), jnp.sum(gr)
     bounds = st.bounds
-    # evosax strategies sample unbounded; decode clips the same way
-    best_g = _lock(skel, config, bounds, config.generations, jnp.clip(best_g, 0.0, 1.0))
+    best_g = jnp.clip(best_g, 0.0, 1.0)  # evosax strategies sample unbounded; decode clips the same way
+    if config.tie_lengths:  # the projection every generation applies, also to the returned best
+        best_g = _tie(skel, best_g)
     pose = decode(skel, bounds, best_g)
     links = forward_kinematics(skel, pose)
     n_dist = (evals + grads).astype(jnp.float32) * cloud.points.shape[0] * skel.num_links
