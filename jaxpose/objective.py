@@ -104,9 +104,11 @@ LINK_GROUP = 24
 def _link_scan(bx, by, bz, start, ab, inv, a_ab, radius, with_arg: bool = True):
     """Nearest capsule of every (individual, point) of one block: ``(d, index)``, both ``(P, B)``.
 
-    ``start, ab (L, P, 3)``, ``inv, a_ab, radius (L, P)`` are link-major.  Links are
-    visited in order with a running minimum (a strictly closer link wins, so ties
-    keep the first).  ``with_arg=False`` skips the index (returned as ``None``).
+    ``start, ab (L, P, 3)``, ``inv, a_ab, radius (L, P)`` are link-major; the points
+    ``bx, by, bz`` are ``(B,)`` (the same for every individual) or ``(P, B)`` (one
+    row each).  Links are visited in order with a running minimum (a strictly closer
+    link wins, so ties keep the first).  ``with_arg=False`` skips the index
+    (returned as ``None``).
     """
     L = start.shape[0]
     G = min(L, LINK_GROUP)
@@ -132,7 +134,7 @@ def _link_scan(bx, by, bz, start, ab, inv, a_ab, radius, with_arg: bool = True):
                 arg = jnp.where(closer, k0 + j, arg)
         return (best, arg, k0 + G), None
 
-    P, B = start.shape[1], bx.shape[0]
+    P, B = start.shape[1], bx.shape[-1]
     init = (jnp.full((P, B), jnp.inf, bx.dtype), jnp.zeros((P, B), jnp.int32) if with_arg else None, jnp.int32(0))
     grouped = tuple(x.reshape((n_groups, G) + x.shape[1:]) for x in (start, ab, inv, a_ab, radius))
     if n_groups == 1:
