@@ -23,6 +23,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python experiments/bench.py
 	$(BIN)/python experiments/point_budget.py
+	$(BIN)/python experiments/far_bounds.py
 
 data: $(STAMP)
 	$(BIN)/python experiments/make_data.py
