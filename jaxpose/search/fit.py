@@ -60,7 +60,7 @@ class FitConfig:
     Attributes:
         algorithm: ``"ga"`` (branch-swap GA), ``"hc"`` (hill climbing) or the name
             of any evosax strategy (e.g. ``"cma_es"``).
-        population: individuals evaluated per generation.
+        population: individuals evaluated per generation (per island).
         generations: number of generations; the first evaluates the initial
             population.  ``None`` (the default): chosen for the skeleton by
             :meth:`for_skeleton`, ``GENERATIONS_PER_GENE`` (4) per searched gene
@@ -68,12 +68,13 @@ class FitConfig:
             (:func:`auto_generations`): the spider's 39 genes get 150, the
             humanoid's 75 get 300, a 7-joint arm's 21 get 100.  A small
             skeleton needs fewer generations (spider tuning images, 2 seeds: 100%
-            link accuracy at 300 and 99.4% at 150 and 100, in half and a third of
+            link accuracy at 300, 99.4% at 150 and 99.4-100% at 100, in half and a third of
             the time); the humanoid's 300 are its tuned value (450 measured
             worse).  The paper, too, spent 30 minutes on the spider and 70 on the
             humanoid.
-        chunk: generations per compiled chunk (progress granularity) when
-            ``memetic_every`` is 0.
+        chunk: generations per compiled chunk (progress granularity) when there
+            is no memetic step (another algorithm than the GA, or a memetic
+            setting of 0); otherwise a chunk is ``memetic_every`` generations.
         std_init, std_final: mutation / sampling step in normalised genome units,
             decayed exponentially over the generations.
         crossover_rate: probability that a child takes a subtree from a second parent.
