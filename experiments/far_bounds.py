@@ -50,7 +50,7 @@ from jaxpose.objective import (
     _present,
     cloud_spread,
     data_cost,
-    num_blocks,
+    to_blocks,
 )
 from jaxpose.pipeline import load_observation
 from jaxpose.search.fit import FitConfig, search_epoch, search_init
@@ -124,7 +124,7 @@ def _bounded_block(bx, by, bz, bw, links, near: int, tile: int):
     exact for the weighted points."""
     best, next_bound, present = _near_pass(bx, by, bz, bw, links, near, tile)
     P, T = best.shape[:2]
-    pending = jnp.any((best > next_bound[..., None]) & present, -1)
+    pending = _pending(best, next_bound, present)
     px, py, pz = (x.reshape(T, tile) for x in (bx, by, bz))
     cap = max(1, -(-P * T // _FIXUP_FRACTION))
 
@@ -143,13 +143,12 @@ def _bounded_block(bx, by, bz, bw, links, near: int, tile: int):
 
 
 def _blocks(cloud: Cloud, block: int):
-    pts, w = _present(cloud)
-    N = pts.shape[0]
-    nb = num_blocks(N, block)
-    pad = nb * block - N
-    pts = jnp.concatenate([pts, jnp.zeros((pad, 3), pts.dtype)])
-    w = jnp.concatenate([w, jnp.zeros((pad,), w.dtype)])
-    return tuple(pts[:, k].reshape(nb, block) for k in range(3)) + (w.reshape(nb, block),)
+    return to_blocks(*_present(cloud), block)
+
+
+def _pending(best, next_bound, present):
+    """(individual, tile) pairs where a capsule outside the candidates might be nearer."""
+    return jnp.any((best > next_bound[..., None]) & present, -1)
 
 
 @partial(jax.jit, static_argnames=("near", "tile", "block"))
@@ -173,7 +172,7 @@ def fixup_share(cloud: Cloud, start, end, radius, near: int, tile: int, block: i
 
     def one(acc, xs):
         best, next_bound, present = _near_pass(*xs, links, near, tile)
-        pend = jnp.any((best > next_bound[..., None]) & present, -1)
+        pend = _pending(best, next_bound, present)
         used = jnp.broadcast_to(jnp.any(present, -1), pend.shape)
         return (acc[0] + jnp.sum(pend), acc[1] + jnp.sum(used)), None
 

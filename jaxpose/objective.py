@@ -256,12 +256,7 @@ def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = ObjectiveCon
     if blocks is not None:
         order = spread_order(N)
         pts, w = pts[order], w[order]
-    pad = nb * B - N
-    if pad:
-        pts = jnp.concatenate([pts, jnp.zeros((pad, 3), pts.dtype)])
-        w = jnp.concatenate([w, jnp.zeros((pad,), w.dtype)])
-    px, py, pz = (pts[:, k].reshape(nb, B) for k in range(3))
-    wb = w.reshape(nb, B)
+    px, py, pz, wb = to_blocks(pts, w, B)
     P, L = start.shape[0], start.shape[1]
     radius = jnp.broadcast_to(jnp.asarray(radius, start.dtype), (P, L))
     inv_sigma = (1.0 / jnp.asarray(sigma, start.dtype)).astype(start.dtype)
@@ -271,6 +266,18 @@ def data_cost(cloud: Cloud, sigma, start, end, radius, block: int = ObjectiveCon
     total = _prefix_sum(px, py, pz, wb, start, end, radius, inv_sigma, blocks)
     used = jnp.sum(jnp.where(jnp.arange(nb) < blocks, jnp.sum(wb, 1), 0.0))
     return total / jnp.maximum(used, _EPS)
+
+
+def to_blocks(pts, w, block: int):
+    """Coordinate and weight arrays ``(blocks, block)`` of points ``(N, 3)`` and weights
+    ``(N,)``, padded with weight-0 points at the origin to whole blocks."""
+    N = pts.shape[0]
+    nb = num_blocks(N, block)
+    pad = nb * block - N
+    if pad:
+        pts = jnp.concatenate([pts, jnp.zeros((pad, 3), pts.dtype)])
+        w = jnp.concatenate([w, jnp.zeros((pad,), w.dtype)])
+    return tuple(pts[:, k].reshape(nb, block) for k in range(3)) + (w.reshape(nb, block),)
 
 
 def _prefix_sum(px, py, pz, wb, start, end, radius, inv_sigma, blocks):
