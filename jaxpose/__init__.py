@@ -9,11 +9,12 @@ The pure functional core (usable inside your own ``jax.jit``/``jax.vmap``):
   :func:`population_cost`, :func:`observe`, :func:`cloud_spread`
 - search: :func:`fit` (pure), :func:`fit_cloud`, :class:`Fitter`, :class:`FitConfig`, :class:`FitResult`,
   :class:`BranchSwapGA`, :class:`BoundedHillClimbing`
-- depth: :class:`Intrinsics`, :data:`KINECT_V1`, :func:`depth_to_cloud`, :func:`points_to_cloud`
+- depth: :class:`Intrinsics`, :data:`KINECT_V1`, :func:`depth_to_cloud`, :func:`points_to_cloud`,
+  :func:`sensor_points_to_cloud`
 
 The edges (files): :func:`load_skeleton` (native TOML/JSON, URDF, MJCF), :func:`load_depth`,
-:func:`parse_intrinsics`, :func:`fit_depth_file`.  Errors for bad input derive from
-:class:`JaxposeError`.
+:func:`load_points` (PLY, PCD, XYZ, NumPy point clouds), :func:`parse_intrinsics`, :func:`fit_depth_file`.
+Errors for bad input derive from :class:`JaxposeError`.
 """
 
 __version__ = "0.1.0"
@@ -22,8 +23,9 @@ from ._xla_flags import disable_ynn_fusions as _disable_ynn_fusions
 
 _disable_ynn_fusions()  # before anything computes: see jaxpose/_xla_flags.py
 
-from .camera import KINECT_V1, Intrinsics, depth_to_cloud, points_to_cloud, project
+from .camera import KINECT_V1, Intrinsics, depth_to_cloud, points_to_cloud, project, sensor_points_to_cloud
 from .errors import ConfigError, DepthError, IntrinsicsError, JaxposeError, SkeletonError
+from .io.cloud_file import load_points
 from .io.depth_file import load_depth, parse_intrinsics
 from .io.skeleton_file import load_skeleton, shipped_skeletons
 from .kinematics import Links, forward_kinematics
@@ -37,6 +39,6 @@ __all__ = [
     "FitConfig", "FitResult", "Fitter", "Intrinsics", "IntrinsicsError", "JaxposeError", "Links",
     "ObjectiveConfig", "Pose", "Skeleton", "SkeletonError", "cloud_spread", "data_cost", "decode",
     "depth_to_cloud", "encode", "fit", "fit_cloud", "fit_depth_file", "forward_kinematics", "genome_bounds",
-    "genome_layout", "load_depth", "load_skeleton", "observe", "paper_cost", "parse_intrinsics",
-    "points_to_cloud", "population_cost", "project", "rest_pose", "shipped_skeletons",
+    "genome_layout", "load_depth", "load_points", "load_skeleton", "observe", "paper_cost", "parse_intrinsics",
+    "points_to_cloud", "population_cost", "project", "rest_pose", "sensor_points_to_cloud", "shipped_skeletons",
 ]

@@ -152,6 +152,12 @@ def depth_to_cloud(
             f"(near={near} m, far={far} m{', background subtracted' if background is not None else ''}); "
             f"at least {min_points} are needed"
         )
+    return _subsample(pts, idx, max_points, seed)
+
+
+def _subsample(pts: np.ndarray, idx: np.ndarray, max_points: int, seed: int) -> Cloud:
+    """The points ``pts[idx]`` as a :class:`Cloud` of ``max_points``: a seeded random
+    subset when there are more, weight-0 padding when fewer."""
     if len(idx) > max_points:
         rng = np.random.default_rng(seed)
         idx = np.sort(rng.choice(idx, max_points, replace=False))
@@ -160,6 +166,83 @@ def depth_to_cloud(
     out[: len(idx)] = pts[idx]
     w[: len(idx)] = 1.0
     return Cloud(out, w)
+
+
+def sensor_points_to_cloud(
+    points: np.ndarray,
+    near: float = 0.3,
+    far: float = 8.0,
+    max_points: int = 1024,
+    seed: int = 0,
+    min_points: int = 50,
+    source: str = "point cloud",
+) -> Cloud:
+    """Points in the sensor's frame (``(M, 3)``, metres; at the origin, looking
+    along +z) -> fixed-size :class:`Cloud`, the counterpart of :func:`depth_to_cloud`.
+
+    Keeps the finite points with ``near <= z <= far``, then a deterministic random
+    subset of ``max_points`` (the same sampling as :func:`depth_to_cloud`, so the
+    foreground pixels of a depth image written out as points give the same cloud).
+    Raises :class:`DepthError` when no point is finite, none lies within the range,
+    fewer than ``min_points`` remain, or they all coincide."""
+    with np.errstate(over="ignore"):  # beyond float32: inf, dropped below
+        pts = np.asarray(points, np.float32)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise DepthError(f"{source}: expected points of shape (M, 3), got {pts.shape}")
+    if not (np.isfinite(near) and np.isfinite(far) and 0 <= near < far):
+        raise DepthError(f"{source}: near/far range must satisfy 0 <= near < far, got near={near}, far={far}")
+    if max_points < 1:
+        raise DepthError(f"{source}: max_points must be >= 1, got {max_points}")
+    finite = np.all(np.isfinite(pts), -1)
+    if not finite.any():
+        raise DepthError(f"{source}: the cloud holds no point (every point is NaN or inf)")
+    z = pts[:, 2]
+    with np.errstate(invalid="ignore"):
+        keep = finite & (z >= near) & (z <= far)
+    if not keep.any():
+        zf = z[finite]
+        raise DepthError(
+            f"{source}: no point lies within near={near} m .. far={far} m in front of the sensor "
+            f"(the points' z spans {float(zf.min()):.4g} .. {float(zf.max()):.4g}; check the near/far range, "
+            "the cloud's unit and its viewpoint)"
+        )
+    idx = np.flatnonzero(keep)
+    if len(idx) < min_points:
+        raise DepthError(
+            f"{source}: only {len(idx)} points lie within near={near} m .. far={far} m; at least {min_points} "
+            "are needed"
+        )
+    kept = pts[idx]
+    if float(np.max(np.ptp(kept, axis=0))) < 1e-3:
+        raise DepthError(f"{source}: the points all lie within 1 mm of each other; not a cloud to fit")
+    return _subsample(pts, idx, max_points, seed)
+
+
+def cloud_view(points: np.ndarray, width: int = 640, height: int = 480) -> tuple[np.ndarray, Intrinsics]:
+    """A depth image of sensor-frame points, seen from the sensor, for plots: the
+    intrinsics frame the points (5% margin, square pixels) and each pixel holds
+    the nearest point's depth (NaN where none; one pass fills single-pixel gaps)."""
+    p = np.asarray(points, np.float64)
+    p = p[np.all(np.isfinite(p), -1) & (p[:, 2] > 1e-6)]
+    depth = np.full((height, width), np.nan, np.float32)
+    if len(p) == 0:
+        return depth, Intrinsics(1.0, 1.0, width / 2, height / 2, width, height)
+    uv = p[:, :2] / p[:, 2:3]
+    lo, hi = uv.min(0), uv.max(0)
+    span = np.maximum(hi - lo, 1e-6) * 1.1
+    f = float(min(width / span[0], height / span[1]))
+    mid = (lo + hi) / 2
+    k = Intrinsics(f, f, width / 2 - f * mid[0], height / 2 - f * mid[1], width, height)
+    u = np.clip(np.round(f * uv[:, 0] + k.cx).astype(np.int64), 0, width - 1)
+    v = np.clip(np.round(f * uv[:, 1] + k.cy).astype(np.int64), 0, height - 1)
+    flat = np.full(height * width, np.inf)
+    np.minimum.at(flat, v * width + u, p[:, 2])
+    img = flat.reshape(height, width)
+    pad = np.pad(img, 1, constant_values=np.inf)
+    near = np.min([pad[1 + dy:1 + dy + height, 1 + dx:1 + dx + width] for dy in (-1, 0, 1) for dx in (-1, 0, 1)], 0)
+    img = np.where(np.isfinite(img), img, near)
+    depth[np.isfinite(img)] = img[np.isfinite(img)]
+    return depth, k
 
 
 def points_to_cloud(points: np.ndarray, max_points: int | None = None, seed: int = 0) -> Cloud:

@@ -1,4 +1,4 @@
-"""File-level conveniences: depth file + skeleton file -> fit result (an edge module)."""
+"""File-level conveniences: depth image or point-cloud file + skeleton file -> fit result (an edge module)."""
 
 from __future__ import annotations
 
@@ -7,18 +7,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Intrinsics, depth_to_cloud
+from .camera import Intrinsics, cloud_view, depth_to_cloud, sensor_points_to_cloud
 from .errors import ConfigError, DepthError
+from .io.cloud_file import is_cloud_file, load_points, parse_viewpoint, to_sensor_frame
 from .io.depth_file import load_depth, parse_intrinsics
 from .io.fit_result import file_sha256, result_document
 from .io.skeleton_file import load_skeleton, resolve_skeleton_path
+from .objective import Cloud
 from .search import FitConfig, FitResult, fit_cloud
 from .skeleton import Skeleton
 
 
 @dataclass(frozen=True)
 class DepthOptions:
-    """How a depth file becomes a cloud."""
+    """How a depth image or point-cloud file becomes a cloud.
+
+    Depth images: ``intrinsics``, ``depth_scale`` (metres per stored integer),
+    ``background``.  Point clouds: ``cloud_scale`` (metres per unit of the file's
+    coordinates) and ``viewpoint`` (``tx,ty,tz,qw,qx,qy,qz``: the sensor's pose in
+    the cloud's frame; ``None``: the file's own, identity unless a PCD header gives
+    one).  Both: ``near``/``far`` (depth along the sensor's z), ``max_points``,
+    ``sample_seed``."""
 
     intrinsics: str | None = "kinect"
     depth_scale: float = 0.001
@@ -28,6 +37,8 @@ class DepthOptions:
     background_tolerance: float = 0.05
     max_points: int = 1024
     sample_seed: int = 0
+    cloud_scale: float = 1.0
+    viewpoint: tuple | str | None = None
 
     def validate(self) -> "DepthOptions":
         """Raise :class:`ConfigError` for an impossible setting; return ``self``."""
@@ -41,6 +52,13 @@ class DepthOptions:
             raise ConfigError(f"near/far: need 0 <= near < far (metres), got near={near}, far={far}")
         if not num("depth_scale", self.depth_scale) > 0:
             raise ConfigError(f"depth_scale must be > 0 (metres per stored unit), got {self.depth_scale}")
+        if not num("cloud_scale", self.cloud_scale) > 0:
+            raise ConfigError(f"cloud_scale must be > 0 (metres per unit of the cloud file), got {self.cloud_scale}")
+        if self.viewpoint is not None:
+            try:
+                parse_viewpoint(self.viewpoint)
+            except ValueError as e:
+                raise ConfigError(f"viewpoint {self.viewpoint!r}: {e}") from None
         if num("background_tolerance", self.background_tolerance) < 0:
             raise ConfigError(f"background_tolerance must be >= 0 metres, got {self.background_tolerance}")
         for name in ("max_points", "sample_seed"):
@@ -86,6 +104,56 @@ def load_observation(depth_path: str, options: DepthOptions = DepthOptions()):
     return depth, k, cloud
 
 
+def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions()):
+    """Read a point-cloud file into the sensor's frame; return ``(view, intrinsics,
+    cloud, record)``: a depth image of the kept points seen from the sensor and its
+    intrinsics (for plots, :func:`~jaxpose.camera.cloud_view`), the fixed-size
+    :class:`Cloud`, and what the result file records about the input."""
+    options.validate()
+    if options.background:
+        raise ConfigError(f"background {options.background}: background subtraction is for depth images; "
+                          f"{cloud_path} is a point cloud")
+    pf = load_points(cloud_path)
+    viewpoint = parse_viewpoint(options.viewpoint) if options.viewpoint is not None else pf.viewpoint
+    pts = to_sensor_frame(pf.points * np.float32(options.cloud_scale), viewpoint)
+    cloud = sensor_points_to_cloud(pts, options.near, options.far, options.max_points, options.sample_seed,
+                                   source=cloud_path)
+    with np.errstate(invalid="ignore"):
+        shown = pts[np.all(np.isfinite(pts), -1) & (pts[:, 2] >= options.near) & (pts[:, 2] <= options.far)]
+    view, k = cloud_view(shown)
+    record = {
+        "cloud": os.path.basename(cloud_path),
+        "cloud_sha256": file_sha256(cloud_path),
+        "cloud_format": pf.format,
+        "points_in_file": int(len(pf.points)),
+        "cloud_scale": options.cloud_scale,
+        "viewpoint": [float(v) for v in viewpoint],
+        "near": options.near,
+        "far": options.far,
+        "max_points": options.max_points,
+        "points_used": int(np.sum(np.asarray(cloud.weights) > 0)),
+        "sample_seed": options.sample_seed,
+    }
+    return view, k, cloud, record
+
+
+def _depth_record(depth_path: str, options: DepthOptions, k: Intrinsics, cloud: Cloud) -> dict:
+    """What the result file records about a depth-image input."""
+    return {
+        "depth": os.path.basename(depth_path),
+        "depth_sha256": file_sha256(depth_path),
+        "background": os.path.basename(options.background) if options.background else None,
+        "background_sha256": file_sha256(options.background),
+        "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height},
+        "depth_scale": options.depth_scale,
+        "near": options.near,
+        "far": options.far,
+        "max_points": options.max_points,
+        "points_used": int(np.sum(np.asarray(cloud.weights) > 0)),
+        "sample_seed": options.sample_seed,
+    }
+
+
 def load_fit_skeleton(skeleton: str | Skeleton, search_lengths: bool = False) -> tuple[Skeleton, str | None]:
     """The skeleton to fit and its file (``None`` for a :class:`Skeleton` object)."""
     if isinstance(skeleton, Skeleton):
@@ -104,7 +172,9 @@ def fit_depth_file(
     search_lengths: bool = False,
     skeleton_file: str | None = None,
 ) -> FitOutput:
-    """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth file.
+    """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth image
+    or a point-cloud file (``.ply``, ``.pcd``, ``.xyz``, an ``(N, 3)`` ``.npy``: see
+    :mod:`jaxpose.io.cloud_file`; the result is then in the sensor's frame).
 
     ``search_lengths``: for a robot file given by path, search its capsule lengths
     (see :func:`~jaxpose.io.skeleton_file.load_skeleton`).  ``skeleton_file``: the file a
@@ -114,26 +184,20 @@ def fit_depth_file(
     skel, skel_file = load_fit_skeleton(skeleton, search_lengths)
     skel_file = skel_file or skeleton_file
     config = config.for_skeleton(skel)  # the generations the fit runs, also in the result's record
-    depth, k, cloud = load_observation(depth_path, options)
+    if is_cloud_file(depth_path):
+        depth, k, cloud, inputs = load_cloud_observation(depth_path, options)
+        frame = "sensor (the cloud's viewpoint; x right, y down, z forward), metres"
+    else:
+        depth, k, cloud = load_observation(depth_path, options)
+        inputs, frame = _depth_record(depth_path, options, k, cloud), None
     result = fit_cloud(cloud, skel, seed, config, progress)
     if not (np.isfinite(float(result.cost)) and np.all(np.isfinite(np.asarray(result.links.end)))):
         raise ConfigError(
             f"{depth_path}: the fit of {skel.name!r} ended with a non-finite cost or pose; "
             "check the skeleton's ranges and the depth scale"
         )
-    inputs = {
-        "depth": os.path.basename(depth_path),
-        "depth_sha256": file_sha256(depth_path),
-        "background": os.path.basename(options.background) if options.background else None,
-        "background_sha256": file_sha256(options.background),
-        "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height},
-        "depth_scale": options.depth_scale,
-        "near": options.near,
-        "far": options.far,
-        "max_points": options.max_points,
-        "points_used": int(np.sum(np.asarray(cloud.weights) > 0)),
-        "sample_seed": options.sample_seed,
-    }
     doc = result_document(skel, skel_file, result, config, seed, inputs)
+    if frame:
+        doc["frame"] = frame
     doc["skeleton"]["search_lengths"] = bool(search_lengths)
     return FitOutput(skel, result, depth, k, doc)

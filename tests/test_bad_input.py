@@ -53,6 +53,33 @@ def _link(name, parent=None, **kw):
     return "\n".join(lines + [f"{k} = {json.dumps(v)}" for k, v in kw.items()]) + "\n"
 
 
+def _ply_header(n: int, props: str, element: str = "vertex") -> bytes:
+    return (f"ply\nformat binary_little_endian 1.0\nelement {element} {n}\n"
+            + "".join(f"property float {p}\n" for p in props) + "end_header\n").encode()
+
+
+def _make_clouds(d: Path) -> None:
+    """The point-cloud files of the P rows."""
+    pts = (np.random.default_rng(0).normal(size=(100, 3)) * 0.2 + [0, 0, 1.5]).astype(np.float32)
+    np.save(d / "cloud.npy", pts)
+    np.save(d / "nan_cloud.npy", np.full((100, 3), np.nan, np.float32))
+    np.save(d / "mm.npy", np.tile(np.float32([0, 0, 1500]), (100, 1)) + pts * [1, 1, 0])
+    np.save(d / "tiny.npy", pts[:20])
+    np.save(d / "same.npy", np.ones((100, 3), np.float32))
+    np.save(d / "int_cloud.npy", (pts * 1000).astype(np.int32))
+    (d / "empty.pcd").write_bytes(b"")
+    (d / "notes.ply").write_text("not a cloud\n")
+    (d / "faces.ply").write_text("ply\nformat ascii 1.0\nelement face 0\nproperty list uchar int vertex_indices\n"
+                                 "end_header\n")
+    (d / "noz.ply").write_bytes(_ply_header(100, "xy") + pts[:, :2].tobytes())
+    (d / "cut.ply").write_bytes(_ply_header(100, "xyz") + pts[:10].tobytes())
+    pcd = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA {}\n"
+    (d / "zipped.pcd").write_text(pcd.format("binary_zipped"))
+    # an LZF stream whose first control byte refers back before the start of the output
+    (d / "corrupt.pcd").write_bytes(pcd.format("binary_compressed").encode() + b"\x03\0\0\0\x0c\0\0\0\x20\x05\x00")
+    (d / "words.xyz").write_text("# x y z\n1 2 3\n4 five 6\n")
+
+
 def make_inputs(d: Path) -> None:
     """Every input file the rows of docs/errors.md refer to."""
     import imageio.v3 as iio
@@ -70,12 +97,13 @@ def make_inputs(d: Path) -> None:
     few[100:104, 100:104] = 2.0  # 16 points
     np.save(d / "few.npy", few)
     np.save(d / "line.npy", np.ones((1, W), np.float32))
-    np.save(d / "cube.npy", np.ones((H, W, 3), np.float32))
+    np.save(d / "cube.npy", np.ones((H, W, 4), np.float32))
     np.save(d / "strings.npy", np.array([["a", "b"], ["c", "d"]]))
     _npy_header_only(d / "huge.npy", (100_000, 100_000))
     _npy_header_only(d / "trunc.npy", (H, W), extra=b"\0" * 100)
     np.savez(d / "archive.npz", depth=good)
     os.replace(d / "archive.npz", d / "archive.npy")
+    _make_clouds(d)
     (d / "notes.png").write_text("not a picture\n")
     (d / "empty.png").write_bytes(b"")
     iio.imwrite(d / "rgb.png", np.zeros((H, W, 3), np.uint8))
@@ -198,7 +226,7 @@ ROWS = documented_rows()
 def test_the_table_has_every_class_of_bad_input():
     ids = [r.values[0] for r in ROWS]
     assert len(ids) == len(set(ids)) and len(ids) >= 60
-    for prefix in "DISC":
+    for prefix in "DISCP":
         assert any(i.startswith(prefix) for i in ids)
 
 

@@ -18,8 +18,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from jaxpose.camera import Intrinsics, depth_to_cloud
+from jaxpose.camera import Intrinsics, depth_to_cloud, sensor_points_to_cloud
 from jaxpose.errors import DepthError, IntrinsicsError, SkeletonError
+from jaxpose.io.cloud_file import load_points
 from jaxpose.io.depth_file import load_depth, parse_intrinsics
 from jaxpose.io.skeleton_file import load_skeleton, skeleton_from_dict
 from jaxpose.skeleton import Skeleton
@@ -264,3 +265,78 @@ def test_random_intrinsics_json_files(workdir, data):
     except IntrinsicsError:
         pass
 
+
+
+# --------------------------------------------------------------------------- point clouds
+
+
+def _cloud_or_documented_error(path):
+    try:
+        pf = load_points(path)
+    except DepthError as e:
+        assert str(e).startswith(path) and "\n" not in str(e)
+        return None
+    assert pf.points.ndim == 2 and pf.points.shape[1] == 3 and pf.points.dtype == np.float32
+    return pf
+
+
+def _cloud_files() -> dict:
+    """One small valid file per format (3 points), to corrupt."""
+    pts = np.float32([[0.1, 0.2, 1.5], [0.0, -0.1, 1.6], [0.3, 0.0, 1.4]])
+    ply = "ply\nformat {} 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+    pcd = ("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\nHEIGHT 1\n"
+           "VIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA {}\n")
+    soa = pts.T.astype("<f4").tobytes()  # binary_compressed: the fields one after another, as 2 literal runs
+    lzf = bytes([31]) + soa[:32] + bytes([len(soa) - 33]) + soa[32:]
+    text = "\n".join(" ".join(repr(float(v)) for v in p) for p in pts) + "\n"
+    return {
+        ".ply": [(ply.format("ascii") + text).encode(), ply.format("binary_little_endian").encode() + pts.tobytes(),
+                 ply.format("binary_big_endian").encode() + pts.astype(">f4").tobytes()],
+        ".pcd": [(pcd.format("ascii") + text).encode(), pcd.format("binary").encode() + pts.tobytes(),
+                 pcd.format("binary_compressed").encode() + np.uint32([len(lzf), len(soa)]).tobytes() + lzf],
+        ".xyz": [text.encode()],
+        ".npy": [_npy_bytes(pts), _npy_bytes(pts.reshape(1, 3, 3).astype(np.float64))],
+    }
+
+
+CLOUD_FILES = _cloud_files()
+
+
+def test_the_cloud_fuzz_seeds_are_valid(workdir):
+    for ext, files in CLOUD_FILES.items():
+        for i, data in enumerate(files):
+            pf = load_points(_write(workdir, f"seed{i}{ext}", data))
+            assert pf.points.shape == (3, 3) and np.allclose(pf.points[0], [0.1, 0.2, 1.5]), (ext, i)
+
+
+@FUZZ
+@given(pick=st.tuples(st.sampled_from(sorted(CLOUD_FILES)), st.integers(0, 2)), cut=st.integers(0, 80), edit=edits)
+def test_corrupted_cloud_files(workdir, pick, cut, edit):
+    ext, i = pick
+    seeds = CLOUD_FILES[ext]
+    data = _corrupt(seeds[i % len(seeds)], edit)
+    data = data[: len(data) - cut] if cut < len(data) else data
+    _cloud_or_documented_error(_write(workdir, "fuzz" + ext, data))
+
+
+@FUZZ
+@given(raw=st.binary(max_size=300), prefix=st.sampled_from([b"", b"ply\nformat ascii 1.0\n", b"VERSION 0.7\n"]),
+       ext=st.sampled_from([".ply", ".pcd", ".xyz"]))
+def test_random_bytes_as_cloud_files(workdir, raw, prefix, ext):
+    _cloud_or_documented_error(_write(workdir, "fuzz" + ext, prefix + raw))
+
+
+@FUZZ
+@given(pts=hnp.arrays(np.float64, st.tuples(st.integers(0, 80), st.just(3)),
+                      elements=st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.floats(-2, 3))),
+       near=st.floats(-1, 3), far=st.floats(-1, 10), max_points=st.integers(-1, 40), min_points=st.integers(0, 5))
+def test_random_points_to_cloud(pts, near, far, max_points, min_points):
+    try:
+        cloud = sensor_points_to_cloud(pts, near, far, max_points, min_points=min_points)
+    except DepthError as e:
+        assert "\n" not in str(e)
+        return
+    w = np.asarray(cloud.weights)
+    assert cloud.points.shape == (max_points, 3) and np.all(np.isfinite(cloud.points))
+    kept = np.asarray(cloud.points)[w > 0]
+    assert len(kept) >= min(min_points, max_points) and np.all((kept[:, 2] >= near) & (kept[:, 2] <= far))

@@ -1,4 +1,4 @@
-"""``jaxpose fit``: fit a skeleton to a depth image."""
+"""``jaxpose fit``: fit a skeleton to a depth image or a point cloud."""
 
 from __future__ import annotations
 
@@ -16,16 +16,24 @@ MAX_POINTS = 1_000_000
 
 
 def register(sub) -> None:
-    p = sub.add_parser("fit", help="fit a skeleton to a depth image", description="Fit a skeleton to a depth image.")
-    p.add_argument("depth", help="depth image: 16-bit PNG (millimetres) or .npy (metres)")
+    p = sub.add_parser("fit", help="fit a skeleton to a depth image or a point cloud",
+                       description="Fit a skeleton to a depth image or a point cloud.")
+    p.add_argument("depth", metavar="INPUT",
+                   help="depth image: 16-bit PNG (millimetres) or 2-D .npy (metres); or point cloud in the sensor's "
+                        "frame: .ply, .pcd, .xyz, (N, 3) .npy (metres, see --cloud-scale, --viewpoint)")
     p.add_argument("--skeleton", required=True, help="skeleton file (.toml/.json/.urdf/.xml) or a shipped name")
-    p.add_argument("--intrinsics", default="kinect", help="'kinect', 'fx,fy,cx,cy' or a JSON file (default kinect)")
-    p.add_argument("--depth-scale", type=float, default=0.001, help="metres per PNG unit (default 0.001)")
+    p.add_argument("--intrinsics", help="depth images: 'kinect', 'fx,fy,cx,cy' or a JSON file (default kinect)")
+    p.add_argument("--depth-scale", type=float, help="depth images: metres per PNG unit (default 0.001)")
+    p.add_argument("--cloud-scale", type=float,
+                   help="point clouds: metres per unit of the file's coordinates (default 1; 0.001 for millimetres)")
+    p.add_argument("--viewpoint", metavar="TX,TY,TZ,QW,QX,QY,QZ",
+                   help="point clouds: the sensor's pose in the cloud's frame (default: a PCD file's VIEWPOINT, "
+                        "else the origin looking along +z)")
     p.add_argument("--near", type=float, default=0.3, help="nearest depth kept, metres (default 0.3)")
     p.add_argument("--far", type=float, default=8.0, help="farthest depth kept, metres (default 8)")
     p.add_argument("--search-lengths", action="store_true",
                    help="robot files (.urdf, MJCF): also search every link length within +-30%% (default: the model's)")
-    p.add_argument("--background", help="background depth image to subtract (same size)")
+    p.add_argument("--background", help="depth images: background depth image to subtract (same size)")
     p.add_argument("--max-points", type=int, default=1024, help="points sampled from the image (default 1024)")
     p.add_argument("--algorithm", default="ga", help="ga (default), hc, cma_es or another evosax strategy")
     p.add_argument("--population", type=int, default=FitConfig.population)
@@ -85,8 +93,17 @@ def config_from_args(args) -> FitConfig:
     near, far = _finite(args, "near", "--near"), _finite(args, "far", "--far")
     if not 0 <= near < far:
         raise ConfigError(f"--near {near} / --far {far}: need 0 <= near < far (metres)")
-    if not _finite(args, "depth_scale", "--depth-scale") > 0:
+    if args.depth_scale is not None and not _finite(args, "depth_scale", "--depth-scale") > 0:
         raise ConfigError(f"--depth-scale must be > 0 (metres per PNG unit), got {args.depth_scale}")
+    if args.cloud_scale is not None and not _finite(args, "cloud_scale", "--cloud-scale") > 0:
+        raise ConfigError(f"--cloud-scale must be > 0 (metres per unit of the cloud file), got {args.cloud_scale}")
+    if args.viewpoint is not None:
+        from ..io.cloud_file import parse_viewpoint
+
+        try:
+            parse_viewpoint(args.viewpoint)
+        except ValueError as e:
+            raise ConfigError(f"--viewpoint {args.viewpoint!r}: {e}") from None
     cfg = FitConfig(
         algorithm=args.algorithm,
         population=args.population,
@@ -116,7 +133,10 @@ def check_conflicts(args) -> None:
 
     if _same_file(args.out, args.plot):
         raise ConfigError(f"--out and --plot name the same file {args.out}")
-    inputs = [("the depth image", args.depth), ("--background", args.background),
+    from ..io.cloud_file import is_cloud_file
+
+    kind = "the point cloud" if is_cloud_file(args.depth) else "the depth image"
+    inputs = [(kind, args.depth), ("--background", args.background),
               ("--skeleton", resolve_skeleton_path(args.skeleton)), ("--intrinsics", args.intrinsics)]
     for flag, out in (("--out", args.out), ("--plot", args.plot)):
         for what, path in inputs:
@@ -124,9 +144,31 @@ def check_conflicts(args) -> None:
                 raise ConfigError(f"{flag} {out} is also {what}; refusing to overwrite an input")
 
 
+def depth_options(args):
+    """The input settings; :class:`ConfigError` for an option that does not apply to the input's kind."""
+    from ..io.cloud_file import is_cloud_file
+    from ..pipeline import DepthOptions
+
+    if is_cloud_file(args.depth):
+        for flag, value in (("--intrinsics", args.intrinsics), ("--depth-scale", args.depth_scale),
+                            ("--background", args.background)):
+            if value is not None:
+                raise ConfigError(f"{flag} is for depth images; {args.depth} is a point cloud "
+                                  "(see --cloud-scale and --viewpoint)")
+    else:
+        for flag, value in (("--cloud-scale", args.cloud_scale), ("--viewpoint", args.viewpoint)):
+            if value is not None:
+                raise ConfigError(f"{flag} is for point clouds; {args.depth} is a depth image")
+    return DepthOptions(
+        args.intrinsics or "kinect", 0.001 if args.depth_scale is None else args.depth_scale, args.near, args.far,
+        args.background, max_points=args.max_points, cloud_scale=1.0 if args.cloud_scale is None else args.cloud_scale,
+        viewpoint=args.viewpoint,
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     from ..io.results import write_json
-    from ..pipeline import DepthOptions, fit_depth_file, load_fit_skeleton
+    from ..pipeline import fit_depth_file, load_fit_skeleton
 
     config = config_from_args(args)
     check_conflicts(args)
@@ -142,8 +184,7 @@ def run(args: argparse.Namespace) -> int:
         from ..viz import _pyplot
 
         _pyplot()  # fail before the search if matplotlib is missing
-    options = DepthOptions(args.intrinsics, args.depth_scale, args.near, args.far, args.background,
-                           max_points=args.max_points)
+    options = depth_options(args)
     skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths)
     config = config.for_skeleton(skel)  # the generations: the bar's total
     bar = ProgressBar(config.generations, quiet=args.quiet)
@@ -168,4 +209,4 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["register", "run", "config_from_args"]
+__all__ = ["register", "run", "config_from_args", "depth_options"]

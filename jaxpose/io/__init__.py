@@ -1,10 +1,11 @@
-"""File formats: skeletons, depth images, intrinsics and results (the I/O edge)."""
+"""File formats: skeletons, depth images, point clouds, intrinsics and results (the I/O edge)."""
 
+from .cloud_file import load_points
 from .depth_file import load_depth, parse_intrinsics, save_depth_png
 from .results import atomic_write, write_json
 from .skeleton_file import load_skeleton, shipped_skeletons, skeleton_from_dict
 
 __all__ = [
-    "atomic_write", "load_depth", "load_skeleton", "parse_intrinsics", "save_depth_png",
+    "atomic_write", "load_depth", "load_points", "load_skeleton", "parse_intrinsics", "save_depth_png",
     "shipped_skeletons", "skeleton_from_dict", "write_json",
 ]

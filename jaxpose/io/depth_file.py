@@ -66,17 +66,7 @@ def _read_npy(path: str, depth_scale: float) -> np.ndarray:
     Floats are metres; integers are stored units (like a PNG's), times ``depth_scale``.
     """
     try:
-        with open(path, "rb") as f:
-            if f.read(6) != b"\x93NUMPY":
-                raise DepthError(f"{path}: not a .npy file (no NumPy array header)")
-            f.seek(0)
-            version = np.lib.format.read_magic(f)
-            if version == (1, 0):
-                shape, _, dtype = np.lib.format.read_array_header_1_0(f)
-            elif version == (2, 0):
-                shape, _, dtype = np.lib.format.read_array_header_2_0(f)
-            else:
-                shape = dtype = None
+        shape, dtype = npy_header(path)
         if dtype is not None:
             _check_npy(path, shape, dtype)
         arr = np.load(path, mmap_mode="r", allow_pickle=False)
@@ -96,11 +86,36 @@ def _read_npy(path: str, depth_scale: float) -> np.ndarray:
     return arr
 
 
+def npy_header(path: str):
+    """``(shape, dtype)`` from a ``.npy`` file's header, without reading the data
+    (``(None, None)`` for a header version this reader does not know).  Raises
+    :class:`DepthError` when the file has no NumPy header; a corrupt header raises
+    ``ValueError`` or ``SyntaxError``."""
+    with open(path, "rb") as f:
+        if f.read(6) != b"\x93NUMPY":
+            raise DepthError(f"{path}: not a .npy file (no NumPy array header)")
+        f.seek(0)
+        version = np.lib.format.read_magic(f)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+        else:
+            return None, None
+    return shape, dtype
+
+
 def _check_npy(path, shape, dtype):
     if dtype.kind not in "fiu":
         raise DepthError(f"{path}: .npy depth must be a numeric array (metres), got dtype {dtype}")
     if len(shape) == 3 and shape[-1] == 1:
         shape = shape[:2]
+    if len(shape) == 2 and shape[1] == 3 and dtype.kind in "iu":
+        raise DepthError(f"{path}: an integer array of shape {tuple(int(s) for s in shape)}: a point cloud needs "
+                         "float coordinates (metres, or another unit with --cloud-scale)")
+    if len(shape) != 2:
+        raise DepthError(f"{path}: expected a 2-D depth image or a float point array of shape (N, 3) or "
+                         f"(H, W, 3), got {dtype} of shape {tuple(int(s) for s in shape)}")
     _check_shape(shape, path)
 
 
