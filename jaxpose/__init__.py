@@ -25,7 +25,7 @@ _disable_ynn_fusions()  # before anything computes: see jaxpose/_xla_flags.py
 
 from .camera import KINECT_V1, Intrinsics, depth_to_cloud, points_to_cloud, project, sensor_points_to_cloud
 from .errors import ConfigError, DepthError, IntrinsicsError, JaxposeError, SkeletonError
-from .io.cloud_file import load_points
+from .io.cloud_file import load_points, to_sensor_frame
 from .io.depth_file import load_depth, parse_intrinsics
 from .io.skeleton_file import load_skeleton, shipped_skeletons
 from .kinematics import Links, forward_kinematics
@@ -41,4 +41,5 @@ __all__ = [
     "depth_to_cloud", "encode", "fit", "fit_cloud", "fit_depth_file", "forward_kinematics", "genome_bounds",
     "genome_layout", "load_depth", "load_points", "load_skeleton", "observe", "paper_cost", "parse_intrinsics",
     "points_to_cloud", "population_cost", "project", "rest_pose", "sensor_points_to_cloud", "shipped_skeletons",
+    "to_sensor_frame",
 ]

@@ -25,9 +25,9 @@ class DepthOptions:
     Depth images: ``intrinsics``, ``depth_scale`` (metres per stored integer),
     ``background``.  Point clouds: ``cloud_scale`` (metres per unit of the file's
     coordinates) and ``viewpoint`` (``tx,ty,tz,qw,qx,qy,qz``: the sensor's pose in
-    the cloud's frame; ``None``: the file's own, identity unless a PCD header gives
-    one).  Both: ``near``/``far`` (depth along the sensor's z), ``max_points``,
-    ``sample_seed``."""
+    the cloud's frame, the translation in the file's unit like a PCD ``VIEWPOINT``;
+    ``None``: the file's own, identity unless a PCD header gives one).  Both:
+    ``near``/``far`` (depth along the sensor's z), ``max_points``, ``sample_seed``."""
 
     intrinsics: str | None = "kinect"
     depth_scale: float = 0.001
@@ -115,7 +115,7 @@ def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions
                           f"{cloud_path} is a point cloud")
     pf = load_points(cloud_path)
     viewpoint = parse_viewpoint(options.viewpoint) if options.viewpoint is not None else pf.viewpoint
-    pts = to_sensor_frame(pf.points * np.float32(options.cloud_scale), viewpoint)
+    pts = to_sensor_frame(pf.points, viewpoint) * np.float32(options.cloud_scale)  # the viewpoint: the file's unit
     cloud = sensor_points_to_cloud(pts, options.near, options.far, options.max_points, options.sample_seed,
                                    source=cloud_path)
     with np.errstate(invalid="ignore"):

@@ -1,8 +1,10 @@
 """Point-cloud files (``jaxpose/io/cloud_file.py``) against independent writers.
 
-Every file here is written by this test's own code (``struct``, ``ndarray.tofile``,
+Every file here is written by this test's own code (``struct``, ``ndarray.tobytes``,
 text formatting, a small LZF compressor written from liblzf's format description),
-not by the reader's; the points read must equal the points written.  The end-to-end
+not by the reader's; the points read must equal the points written.  The LZF
+decoder is also checked against two streams made by liblzf itself (python-lzf's
+``lzf.compress``, kept here as bytes).  The end-to-end
 test checks that a depth image's foreground written out as a point cloud gives the
 same fit, bit for bit, as the depth image itself.
 """
@@ -67,10 +69,40 @@ def lzf_compress(data: bytes) -> bytes:
     return bytes(out)
 
 
-def test_lzf_known_stream():
+# made by liblzf (python-lzf 0.2.6, lzf.compress) from LIBLZF_TEXT and from the x, y, z
+# floats of LIBLZF_POINTS one field after another (a PCD binary_compressed payload)
+LIBLZF_TEXT = (b"jaxpose point cloud " * 3 + bytes(range(40)) + b"\x00" * 50 + b"xyzxyzxyz" * 4)
+LIBLZF_TEXT_STREAM = (
+    b"\x14jaxpose point cloud j\xe0\x1e\x13\x1f\x00\x01\x02\x03\x04\x05\x06\x07\x08\t\n\x0b\x0c\r\x0e\x0f"
+    b"\x10\x11\x12\x13\x14\x15\x16\x17\x18\x19\x1a\x1b\x1c\x1d\x1e\x1f\x08 !\"#$%&'\x00\xe0(\x00\x02xyz"
+    b"\xe0\x16\x02\x01yz"
+)
+LIBLZF_POINTS = np.stack([np.tile(np.float32([0.0, 0.25, 0.5, 0.75]), 8),
+                          np.repeat(np.float32([-0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 1.0, 1.25]), 4),
+                          np.full(32, 1.5, np.float32)], -1)
+LIBLZF_POINTS_STREAM = bytes.fromhex(
+    "010000400001803e2005033f00004020034000e0640f00bf2071e002030180bee00503e00700409be0030340b7e0030340c3e003"
+    "03008020d3e0030300a0200fe0030300c0200fe06f0301c03f"
+)
+
+
+def test_lzf_known_streams():
     # literal "abc", then a reference of 9 bytes 3 back: it overlaps its own output
     assert lzf_decompress(b"\x02abc\xe0\x00\x02", 12) == b"abcabcabcabc"
     assert lzf_decompress(b"\x00x\x20\x00", 4) == b"xxxx"  # length 1 + 2, offset 0 + 1
+    assert lzf_decompress(LIBLZF_TEXT_STREAM, len(LIBLZF_TEXT)) == LIBLZF_TEXT
+    assert lzf_decompress(LIBLZF_POINTS_STREAM, 384) == LIBLZF_POINTS.T.astype("<f4").tobytes()
+
+
+def test_pcd_compressed_by_liblzf_with_padding(tmp_path):
+    """A binary_compressed PCD as PCL writes it: a padding field ``_`` in the header,
+    left out of the compressed payload."""
+    n = len(LIBLZF_POINTS)
+    head = (f"VERSION 0.7\nFIELDS x y z _\nSIZE 4 4 4 1\nTYPE F F F U\nCOUNT 1 1 1 4\nWIDTH 8\nHEIGHT 4\n"
+            f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary_compressed\n").encode()
+    sizes = struct.pack("<II", len(LIBLZF_POINTS_STREAM), 384)
+    (tmp_path / "pcl.pcd").write_bytes(head + sizes + LIBLZF_POINTS_STREAM)
+    assert same_points(load_points(tmp_path / "pcl.pcd").points, LIBLZF_POINTS)
 
 
 @pytest.mark.parametrize("data", [
@@ -161,6 +193,18 @@ def test_pcd(tmp_path, data):
     assert same_points(pf.points, POINTS)
 
 
+def test_header_quirks(tmp_path):
+    """Comments that look like keywords, CRLF line ends, blank lines in ascii data."""
+    pcd = ("# .PCD v0.7\r\n# DATA ascii is below\r\nVERSION 0.7\r\nFIELDS x y z\r\nSIZE 4 4 4\r\nTYPE F F F\r\n"
+           "WIDTH 2\r\nHEIGHT 1\r\nPOINTS 2\r\nDATA ascii\r\n1 2 3\r\n\r\n4 5 6\r\n")
+    (tmp_path / "q.pcd").write_bytes(pcd.encode())
+    assert same_points(load_points(tmp_path / "q.pcd").points, np.float32([[1, 2, 3], [4, 5, 6]]))
+    ply = ("ply\r\nformat ascii 1.0\r\ncomment the end_header comes later\r\nelement vertex 1\r\n"
+           "property float x\r\nproperty float y\r\nproperty float z\r\nend_header\r\n7 8 9\r\n")
+    (tmp_path / "q.ply").write_bytes(ply.encode())
+    assert same_points(load_points(tmp_path / "q.ply").points, np.float32([[7, 8, 9]]))
+
+
 def test_xyz_and_npy(tmp_path):
     lines = ["# x y z r g b"] + [f"{p[0]!r}\t{p[1]!r} {p[2]!r} 1 2 3" for p in POINTS.astype(float).tolist()]
     (tmp_path / "c.xyz").write_text("\n".join(lines[:100] + [""] + lines[100:]) + "\n")
@@ -234,16 +278,19 @@ def test_cloud_scale_and_viewpoint_options(tmp_path):
     gives the points of the same cloud in metres in the sensor's frame."""
     from jaxpose.pipeline import DepthOptions, load_cloud_observation
 
-    t, q = np.array([1.0, 2.0, 0.5]), Rotation.from_euler("zyx", [90, 10, 0], degrees=True)
+    t, q = np.array([1000.0, 2000.0, 500.0]), Rotation.from_euler("zyx", [90, 10, 0], degrees=True)
     qx, qy, qz, qw = q.as_quat()
-    mm = ((q.apply(POINTS[8:].astype(float)) + t) * 1000).astype(np.float32)
+    mm = (q.apply(POINTS[8:].astype(float) * 1000) + t).astype(np.float32)  # the sensor at t (mm), turned by q
     np.save(tmp_path / "mm.npy", mm)
+    write_pcd(tmp_path / "mm.pcd", mm, "binary", f"{t[0]} {t[1]} {t[2]} {qw} {qx} {qy} {qz}")
     np.save(tmp_path / "m.npy", POINTS[8:])
-    opts = DepthOptions(cloud_scale=0.001, viewpoint=f"{t[0]},{t[1]},{t[2]},{qw},{qx},{qy},{qz}", max_points=600)
-    _, _, a, rec = load_cloud_observation(str(tmp_path / "mm.npy"), opts)
     _, _, b, _ = load_cloud_observation(str(tmp_path / "m.npy"), DepthOptions(max_points=600))
-    assert np.allclose(a.points, b.points, atol=5e-6) and np.array_equal(a.weights, b.weights)
-    assert rec["cloud_scale"] == 0.001 and rec["points_in_file"] == 492
+    opts = DepthOptions(cloud_scale=0.001, viewpoint=f"{t[0]},{t[1]},{t[2]},{qw},{qx},{qy},{qz}", max_points=600)
+    for name, o in (("mm.npy", opts), ("mm.pcd", DepthOptions(cloud_scale=0.001, max_points=600))):
+        _, _, a, rec = load_cloud_observation(str(tmp_path / name), o)
+        assert np.allclose(a.points, b.points, atol=5e-6) and np.array_equal(a.weights, b.weights), name
+        assert rec["cloud_scale"] == 0.001 and rec["points_in_file"] == 492
+        assert rec["viewpoint"] == pytest.approx([*t, qw, qx, qy, qz])
 
 
 def test_bad_clouds_raise_depth_errors(tmp_path):
@@ -252,12 +299,27 @@ def test_bad_clouds_raise_depth_errors(tmp_path):
     (tmp_path / "cut.ply").write_bytes(whole[: len(whole) - 400])
     with pytest.raises(DepthError, match=r"ends after \d+ of 500 vertices"):
         load_points(tmp_path / "cut.ply")
-    write_pcd(tmp_path / "ok.pcd", POINTS, "binary_compressed")
-    whole = bytearray((tmp_path / "ok.pcd").read_bytes())
-    whole[-30] ^= 0xFF
-    (tmp_path / "bad.pcd").write_bytes(bytes(whole))
-    with pytest.raises(DepthError, match="compressed PCD data"):
-        load_points(tmp_path / "bad.pcd")
+    pcd = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {}\nHEIGHT 1\n{}POINTS {}\nDATA {}\n"
+    cases = {  # file content -> the message
+        pcd.format(1, "", 1, "binary_compressed").encode() + b"\x03\0\0\0\x0c\0\0\0\x20\x05\x00":
+            "corrupt .a back reference points outside",
+        pcd.format(10**7, "", 10**7, "binary_compressed").encode() + b"\x03\0\0\0\x00\x0e\x27\x07\x20\x05\x00":
+            r"corrupt \(3 bytes cannot hold",
+        pcd.format(2, "VIEWPOINT 0 0 0 0 0 0 0\n", 2, "ascii").encode() + b"1 2 3\n4 5 6\n": "quaternion .* is zero",
+        pcd.format(2, "", 3, "ascii").encode(): "POINTS 3 but WIDTH x HEIGHT = 2 x 1",
+        pcd.format(1, "WIDTH\n", 1, "ascii").encode(): "WIDTH line has no value",
+        pcd.format(1, "", 1, "ascii").replace("COUNT 1 1 1", "COUNT 1 -1 1").encode(): "COUNT must lie within",
+        b"ply\nformat binary_little_endian 1.0\nelement face 1\nproperty list char int v\nelement vertex 1\n"
+        b"property float x\nproperty float y\nproperty float z\nend_header\n\xff" + bytes(12): "negative length -1",
+        b"ply\nformat ascii 1.0\nelement face 1\nproperty list float int v\nend_header\n": "integer type",
+        b"ply\nformat binary_little_endian 1.0\nelement face 100000000\nproperty list uchar int v\nelement vertex 1\n"
+        b"property float x\nproperty float y\nproperty float z\nend_header\n\x03" + bytes(20): "ends inside",
+    }
+    for i, (data, message) in enumerate(cases.items()):
+        f = tmp_path / f"bad{i}{'.ply' if data.startswith(b'ply') else '.pcd'}"
+        f.write_bytes(data)
+        with pytest.raises(DepthError, match=message):
+            load_points(f)
     with pytest.raises(DepthError, match="all lie within 1 mm"):
         sensor_points_to_cloud(np.ones((100, 3), np.float32))
     with pytest.raises(DepthError, match="no point"):

@@ -289,9 +289,12 @@ def _cloud_files() -> dict:
     soa = pts.T.astype("<f4").tobytes()  # binary_compressed: the fields one after another, as 2 literal runs
     lzf = bytes([31]) + soa[:32] + bytes([len(soa) - 33]) + soa[32:]
     text = "\n".join(" ".join(repr(float(v)) for v in p) for p in pts) + "\n"
+    faces = "element face 2\nproperty list uchar int vertex_indices\nelement vertex"  # faces before the vertices
     return {
         ".ply": [(ply.format("ascii") + text).encode(), ply.format("binary_little_endian").encode() + pts.tobytes(),
-                 ply.format("binary_big_endian").encode() + pts.astype(">f4").tobytes()],
+                 ply.format("binary_big_endian").encode() + pts.astype(">f4").tobytes(),
+                 ply.format("binary_little_endian").replace("element vertex", faces).encode()
+                 + b"\x03" + np.int32([0, 1, 2]).tobytes() + b"\x01" + np.int32([1]).tobytes() + pts.tobytes()],
         ".pcd": [(pcd.format("ascii") + text).encode(), pcd.format("binary").encode() + pts.tobytes(),
                  pcd.format("binary_compressed").encode() + np.uint32([len(lzf), len(soa)]).tobytes() + lzf],
         ".xyz": [text.encode()],
@@ -310,7 +313,7 @@ def test_the_cloud_fuzz_seeds_are_valid(workdir):
 
 
 @FUZZ
-@given(pick=st.tuples(st.sampled_from(sorted(CLOUD_FILES)), st.integers(0, 2)), cut=st.integers(0, 80), edit=edits)
+@given(pick=st.tuples(st.sampled_from(sorted(CLOUD_FILES)), st.integers(0, 3)), cut=st.integers(0, 80), edit=edits)
 def test_corrupted_cloud_files(workdir, pick, cut, edit):
     ext, i = pick
     seeds = CLOUD_FILES[ext]

@@ -19,22 +19,23 @@ def register(sub) -> None:
     p = sub.add_parser("fit", help="fit a skeleton to a depth image or a point cloud",
                        description="Fit a skeleton to a depth image or a point cloud.")
     p.add_argument("depth", metavar="INPUT",
-                   help="depth image: 16-bit PNG (millimetres) or 2-D .npy (metres); or point cloud in the sensor's "
-                        "frame: .ply, .pcd, .xyz, (N, 3) .npy (metres, see --cloud-scale, --viewpoint)")
+                   help="depth image: 16-bit PNG (millimetres) or 2-D .npy (metres); or point cloud in the "
+                        "sensor's frame: .ply, .pcd, .xyz, float (N, 3) or (H, W, 3) .npy (metres, see "
+                        "--cloud-scale, --viewpoint)")
     p.add_argument("--skeleton", required=True, help="skeleton file (.toml/.json/.urdf/.xml) or a shipped name")
     p.add_argument("--intrinsics", help="depth images: 'kinect', 'fx,fy,cx,cy' or a JSON file (default kinect)")
     p.add_argument("--depth-scale", type=float, help="depth images: metres per PNG unit (default 0.001)")
     p.add_argument("--cloud-scale", type=float,
                    help="point clouds: metres per unit of the file's coordinates (default 1; 0.001 for millimetres)")
     p.add_argument("--viewpoint", metavar="TX,TY,TZ,QW,QX,QY,QZ",
-                   help="point clouds: the sensor's pose in the cloud's frame (default: a PCD file's VIEWPOINT, "
-                        "else the origin looking along +z)")
+                   help="point clouds: the sensor's pose in the cloud's frame, translation in the file's unit "
+                        "(default: a PCD file's VIEWPOINT, else the origin looking along +z)")
     p.add_argument("--near", type=float, default=0.3, help="nearest depth kept, metres (default 0.3)")
     p.add_argument("--far", type=float, default=8.0, help="farthest depth kept, metres (default 8)")
     p.add_argument("--search-lengths", action="store_true",
                    help="robot files (.urdf, MJCF): also search every link length within +-30%% (default: the model's)")
     p.add_argument("--background", help="depth images: background depth image to subtract (same size)")
-    p.add_argument("--max-points", type=int, default=1024, help="points sampled from the image (default 1024)")
+    p.add_argument("--max-points", type=int, default=1024, help="points sampled from the image or cloud (default 1024)")
     p.add_argument("--algorithm", default="ga", help="ga (default), hc, cma_es or another evosax strategy")
     p.add_argument("--population", type=int, default=FitConfig.population)
     p.add_argument("--generations", type=int, default=FitConfig.generations,
@@ -56,7 +57,8 @@ def register(sub) -> None:
                    help="weight of the free-space term (0: the paper's objective alone)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="result.json", help="result JSON (default result.json)")
-    p.add_argument("--plot", help="PNG with the fitted skeleton drawn over the depth image (needs matplotlib)")
+    p.add_argument("--plot", help="PNG with the fitted skeleton drawn over the depth image, or over a "
+                                     "view of the cloud from the sensor (needs matplotlib)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

@@ -16,7 +16,7 @@
 Coordinates are read as float32 in the file's unit; NaN/inf points (the holes
 of an organised cloud) are kept here and dropped by the pipeline.  Every problem
 raises :class:`~jaxpose.errors.DepthError` naming the file and the problem; the
-header's point count is checked before the points are read.
+header's counts are checked against the file's size before anything is allocated.
 """
 
 from __future__ import annotations
@@ -79,17 +79,18 @@ def load_points(path: str) -> PointFile:
     if os.path.getsize(path) == 0:
         raise DepthError(f"{path}: the point-cloud file is empty")
     ext = os.path.splitext(path)[1].lower()
+    readers = {".ply": _read_ply, ".pcd": _read_pcd, ".xyz": _read_xyz, ".npy": _read_npy_points}
     try:
-        if ext == ".ply":
-            return _read_ply(path)
-        if ext == ".pcd":
-            return _read_pcd(path)
-        if ext == ".xyz":
-            return _read_xyz(path)
-        if ext == ".npy":
-            return _read_npy_points(path)
+        if ext in readers:
+            with np.errstate(over="ignore", invalid="ignore"):  # doubles beyond float32 read as inf (dropped later)
+                return readers[ext](path)
+    except DepthError:
+        raise
     except OSError as e:
         raise DepthError(f"{path}: cannot read the file ({_short(e)})") from None
+    except (ValueError, IndexError, KeyError, OverflowError, TypeError, MemoryError) as e:
+        # a backstop: every case the readers know of has its own message above
+        raise DepthError(f"{path}: not a readable {ext} point cloud ({_short(e)})") from None
     raise DepthError(f"{path}: not a point-cloud file (expected .ply, .pcd, .xyz or an (N, 3) .npy array)")
 
 
@@ -151,7 +152,7 @@ _PLY_TYPES = {
     "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
-_PLY_END = re.compile(rb"end_header\r?\n")
+_PLY_END = re.compile(rb"(?:^|\n)end_header[ \t]*\r?\n")
 
 
 @dataclass
@@ -188,6 +189,8 @@ def _read_ply(path: str) -> PointFile:
             for t in types if isinstance(types, tuple) else (types,):
                 if t not in _PLY_TYPES:
                     raise DepthError(f"{path}: unknown PLY property type {t!r} in {ln!r}")
+            if isinstance(types, tuple) and _PLY_TYPES[types[0]][0] != "u" and _PLY_TYPES[types[0]][0] != "i":
+                raise DepthError(f"{path}: a PLY list's count must have an integer type, not {types[0]!r} in {ln!r}")
             elements[-1].props.append((name, types))
         else:
             raise DepthError(f"{path}: malformed PLY header line {ln!r}")
@@ -246,99 +249,136 @@ def _skip_list_element(path: str, body: bytes, pos: int, e: _PlyElement, endian:
                 if pos + ct.itemsize > len(body):
                     raise DepthError(f"{path}: the file ends inside the PLY element {e.name!r}")
                 n = int(np.frombuffer(body, ct, 1, pos)[0])
+                if n < 0:
+                    raise DepthError(f"{path}: a list of the PLY element {e.name!r} has a negative length {n}")
                 pos += ct.itemsize + n * it.itemsize
             else:
                 pos += np.dtype(_PLY_TYPES[t]).itemsize
+        if pos > len(body):
+            raise DepthError(f"{path}: the file ends inside the PLY element {e.name!r}")
     return pos
 
 
 # ---------------------------------------------------------------------------------------- PCD
 
-_PCD_END = re.compile(rb"DATA[ \t]+[A-Za-z_]+[ \t]*\r?\n")
 _PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8",
               ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8"}
 
 
-def _read_pcd(path: str) -> PointFile:
+def _pcd_header(path: str) -> tuple[dict, int]:
+    """The header's keywords (first token of each non-comment line, upper case) and
+    their values, up to and including the DATA line; and the offset of the data."""
     with open(path, "rb") as f:
         head = f.read(MAX_HEADER_BYTES)
-    if not re.match(rb"\s*(#[^\n]*\n\s*)*(VERSION|FIELDS)\s", head):
+    header, pos = {}, 0
+    whole = len(head) < MAX_HEADER_BYTES  # the file ends within what was read
+    for line in head.split(b"\n"):
+        end = pos + len(line) + 1
+        if end > len(head) and not whole:
+            break
+        tok = line.decode("ascii", errors="replace").split()
+        pos = end
+        if not tok or tok[0].startswith("#"):
+            continue
+        key = tok[0].upper()
+        if not header and key not in ("VERSION", "FIELDS"):
+            raise DepthError(f"{path}: not a PCD file (it does not start with a VERSION or FIELDS line)")
+        header[key] = tok[1:]
+        if key == "DATA":
+            return header, min(pos, len(head))
+    if not header:
         raise DepthError(f"{path}: not a PCD file (it does not start with a VERSION or FIELDS line)")
-    m = _PCD_END.search(head)
-    if m is None:
-        raise DepthError(f"{path}: the PCD header has no DATA line within {MAX_HEADER_BYTES // 1024} KiB")
-    text = head[: m.end()].decode("ascii", errors="replace")
-    header = {}
-    for ln in text.splitlines():
-        tok = ln.split()
-        if tok and not tok[0].startswith("#"):
-            header[tok[0].upper()] = tok[1:]
+    raise DepthError(f"{path}: the PCD header has no DATA line within {MAX_HEADER_BYTES // 1024} KiB")
+
+
+def _read_pcd(path: str) -> PointFile:
+    header, offset = _pcd_header(path)
+
+    def ints(key, default=None, lo=0, hi=MAX_CLOUD_POINTS):
+        vals = header.get(key, default)
+        if not vals:
+            raise DepthError(f"{path}: the PCD header's {key} line has no value")
+        try:
+            out = [int(v) for v in vals]
+        except ValueError:
+            raise DepthError(f"{path}: the PCD header's {key} must be integers, got {' '.join(vals)}") from None
+        if any(not lo <= v <= hi for v in out):
+            raise DepthError(f"{path}: the PCD header's {key} must lie within {lo} .. {hi}, got {' '.join(vals)}")
+        return out
+
     fields = header.get("FIELDS", [])
     n_fields = len(fields)
+    sizes = ints("SIZE", [], 1, 8)
+    types = [t.upper() for t in header.get("TYPE", [])]
+    counts = ints("COUNT", ["1"] * n_fields, 1, 1_000_000)
+    width, height = ints("WIDTH", ["0"])[0], ints("HEIGHT", ["1"])[0]
+    points = ints("POINTS", [str(width * height)])[0]
     try:
-        sizes = [int(s) for s in header.get("SIZE", [])]
-        types = [t.upper() for t in header.get("TYPE", [])]
-        counts = [int(c) for c in header.get("COUNT", ["1"] * n_fields)]
-        width = int(header.get("WIDTH", ["0"])[0])
-        height = int(header.get("HEIGHT", ["1"])[0])
-        points = int(header.get("POINTS", [str(width * height)])[0])
-        viewpoint = tuple(float(v) for v in header.get("VIEWPOINT", IDENTITY_VIEWPOINT))
-    except ValueError:
-        raise DepthError(f"{path}: the PCD header holds a value that is not a number") from None
+        viewpoint = parse_viewpoint(header.get("VIEWPOINT", list(IDENTITY_VIEWPOINT)))
+    except ValueError as e:
+        raise DepthError(f"{path}: the PCD VIEWPOINT (tx ty tz qw qx qy qz): {e}") from None
     if not (len(sizes) == len(types) == len(counts) == n_fields) or n_fields == 0:
         raise DepthError(f"{path}: the PCD header's FIELDS, SIZE, TYPE and COUNT do not have one entry per field")
-    if len(viewpoint) != 7 or not np.all(np.isfinite(viewpoint)):
-        raise DepthError(f"{path}: the PCD VIEWPOINT must be 7 finite numbers (tx ty tz qw qx qy qz)")
+    if points != width * height:
+        raise DepthError(f"{path}: the PCD header says POINTS {points} but WIDTH x HEIGHT = {width} x {height}")
     _check_count(path, points, "PCD header")
     kinds = []
-    for name, t, s in zip(fields, types, sizes):
-        if (t, s) not in _PCD_TYPES:
-            raise DepthError(f"{path}: PCD field {name!r} has an unknown TYPE {t} / SIZE {s}")
-        kinds.append(_PCD_TYPES[(t, s)])
+    for name, t, sz in zip(fields, types, sizes):
+        if (t, sz) not in _PCD_TYPES:
+            raise DepthError(f"{path}: PCD field {name!r} has an unknown TYPE {t} / SIZE {sz}")
+        kinds.append(_PCD_TYPES[(t, sz)])
     cols = _xyz_columns(path, fields, "PCD file")
     if any(counts[c] != 1 for c in cols):
         raise DepthError(f"{path}: the PCD fields x, y, z must have COUNT 1")
-    data = header["DATA"][0].lower()
-    body = _read_body(path, m.end())
+    data = header["DATA"][0].lower() if header["DATA"] else ""
+    body = _read_body(path, offset)
+    row = sum(np.dtype(k).itemsize * c for k, c in zip(kinds, counts))
     if data == "ascii":
         offsets = np.cumsum([0] + counts[:-1])
+        body = b"\n".join(ln for ln in body.splitlines() if ln.strip())  # blank lines are skipped, as PCL does
         pts = _text_rows(path, body, points, [int(offsets[c]) for c in cols], "points", "point")
     elif data == "binary":
+        if points * row > len(body):
+            raise DepthError(f"{path}: the file ends after {len(body) // row} of {points} points")
         dtype = np.dtype([(f"f{i}", "<" + k, (c,)) if c > 1 else (f"f{i}", "<" + k)
                           for i, (k, c) in enumerate(zip(kinds, counts))])
-        if points * dtype.itemsize > len(body):
-            got = len(body) // dtype.itemsize
-            raise DepthError(f"{path}: the file ends after {got} of {points} points")
         rows = np.frombuffer(body, dtype, points)
         pts = np.stack([rows[f"f{c}"].astype(np.float32) for c in cols], -1).reshape(-1, 3)
     elif data == "binary_compressed":
-        pts = _pcd_compressed(path, body, points, kinds, counts, cols)
+        pts = _pcd_compressed(path, body, points, fields, kinds, counts, cols)
     else:
         raise DepthError(f"{path}: unknown PCD DATA {data!r} (expected ascii, binary or binary_compressed)")
     return PointFile(pts, f"pcd {data}", viewpoint)
 
 
-def _pcd_compressed(path, body, points, kinds, counts, cols) -> np.ndarray:
-    """``binary_compressed``: sizes (2 x uint32), then LZF of the fields one after another."""
+def _pcd_compressed(path, body, points, fields, kinds, counts, cols) -> np.ndarray:
+    """``binary_compressed``: sizes (2 x uint32), then LZF of the fields one after another.
+    PCL leaves padding fields (named ``_``) out of this layout; a file that keeps them
+    is read too (the uncompressed size tells which)."""
     if len(body) < 8:
         raise DepthError(f"{path}: the compressed PCD data is truncated")
     csize, usize = (int(v) for v in np.frombuffer(body, "<u4", 2))
     widths = [np.dtype(k).itemsize * c for k, c in zip(kinds, counts)]
-    if usize != points * sum(widths):
-        raise DepthError(f"{path}: the compressed PCD data holds {usize} bytes, {points * sum(widths)} expected "
+    packed = [0 if f == "_" else w for f, w in zip(fields, widths)]
+    if usize == points * sum(widths):
+        packed = widths
+    elif usize != points * sum(packed):
+        raise DepthError(f"{path}: the compressed PCD data holds {usize} bytes, {points * sum(packed)} expected "
                          f"for {points} points")
     if 8 + csize > len(body):
         raise DepthError(f"{path}: the compressed PCD data is truncated ({len(body) - 8} of {csize} bytes)")
+    if usize > 88 * csize + 32:  # LZF expands at most 88-fold (3 bytes of a reference -> 264)
+        raise DepthError(f"{path}: the compressed PCD data is corrupt ({csize} bytes cannot hold {usize})")
     try:
         raw = lzf_decompress(body[8: 8 + csize], usize)
     except ValueError as e:
         raise DepthError(f"{path}: the compressed PCD data is corrupt ({e})") from None
-    starts = np.cumsum([0] + [points * w for w in widths])
+    starts = np.cumsum([0] + [points * w for w in packed])
     out = [np.frombuffer(raw, "<" + kinds[c], points, int(starts[c])).astype(np.float32) for c in cols]
     return np.stack(out, -1).reshape(-1, 3)
 
 
-def lzf_decompress(data: bytes, size: int) -> bytes:
+def lzf_decompress(data: bytes, size: int) -> bytearray:
     """LZF (liblzf's format, as used by PCD's ``binary_compressed``) -> exactly ``size`` bytes.
 
     Each control byte ``c`` starts either a literal run (``c < 32``: the next
@@ -381,7 +421,7 @@ def lzf_decompress(data: bytes, size: int) -> bytes:
         o += k
     if o != size:
         raise ValueError(f"it gives {o} bytes, {size} expected")
-    return bytes(out)
+    return out
 
 
 # ---------------------------------------------------------------------------------------- XYZ, NPY
