@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DepthError
-from .depth_file import _short, npy_header
+from .depth_file import _short, check_input_file, npy_header
 
 CLOUD_EXTENSIONS = (".ply", ".pcd", ".xyz")
 MAX_CLOUD_POINTS = 100_000_000
@@ -69,15 +69,7 @@ def _npy_cloud_shape(shape) -> bool:
 
 def load_points(path: str) -> PointFile:
     """Read a point-cloud file (see the module docstring); raise :class:`DepthError`."""
-    path = str(path)
-    if not os.path.exists(path):
-        raise DepthError(f"{path}: point-cloud file not found")
-    if os.path.isdir(path):
-        raise DepthError(f"{path}: is a directory, not a point cloud")
-    if not os.path.isfile(path):
-        raise DepthError(f"{path}: not a regular file")
-    if os.path.getsize(path) == 0:
-        raise DepthError(f"{path}: the point-cloud file is empty")
+    path = check_input_file(path, "point-cloud file", "a point cloud")
     ext = os.path.splitext(path)[1].lower()
     readers = {".ply": _read_ply, ".pcd": _read_pcd, ".xyz": _read_xyz, ".npy": _read_npy_points}
     try:

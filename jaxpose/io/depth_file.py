@@ -34,21 +34,13 @@ def load_depth(path: str, depth_scale: float = 0.001) -> np.ndarray:
     image, a wrong shape, or an absurd size (checked from the file's header,
     before the pixels are decoded).
     """
-    path = str(path)
-    if not os.path.exists(path):
-        raise DepthError(f"{path}: depth file not found")
-    if os.path.isdir(path):
-        raise DepthError(f"{path}: is a directory, not a depth image")
-    if not os.path.isfile(path):
-        raise DepthError(f"{path}: not a regular file")
+    path = check_input_file(path, "depth file", "a depth image")
     try:
         depth_scale = float(depth_scale)
     except (TypeError, ValueError):
         raise DepthError(f"{path}: depth scale must be a positive number, got {depth_scale!r}") from None
     if not (np.isfinite(depth_scale) and depth_scale > 0):
         raise DepthError(f"{path}: depth scale must be a positive number, got {depth_scale}")
-    if os.path.getsize(path) == 0:
-        raise DepthError(f"{path}: the depth file is empty")
     ext = os.path.splitext(path)[1].lower()
     if ext == ".npy":
         depth = _read_npy(path, depth_scale)
@@ -58,6 +50,22 @@ def load_depth(path: str, depth_scale: float = 0.001) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         depth[~np.isfinite(depth) | (depth <= 0)] = np.nan
     return depth
+
+
+def check_input_file(path, noun: str, thing: str) -> str:
+    """``path`` as a string, or :class:`DepthError` when it is missing, a directory,
+    not a regular file (a FIFO would block) or empty; ``noun``/``thing`` name the
+    kind of input ("depth file" / "a depth image")."""
+    path = str(path)
+    if not os.path.exists(path):
+        raise DepthError(f"{path}: {noun} not found")
+    if os.path.isdir(path):
+        raise DepthError(f"{path}: is a directory, not {thing}")
+    if not os.path.isfile(path):
+        raise DepthError(f"{path}: not a regular file")
+    if os.path.getsize(path) == 0:
+        raise DepthError(f"{path}: the {noun} is empty")
+    return path
 
 
 def _read_npy(path: str, depth_scale: float) -> np.ndarray:
