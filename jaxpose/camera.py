@@ -107,14 +107,18 @@ def depth_to_cloud(
     min_points: int = 50,
     background_tolerance: float = 0.05,
     source: str = "depth image",
+    remove_planes: int = 0,
+    plane_tolerance: float = 0.02,
 ) -> Cloud:
     """Depth image (metres) -> fixed-size :class:`Cloud` of ``max_points`` points.
 
     Background removal keeps pixels within ``[near, far]`` and, with a background
     image, those in front of it.  When more than ``max_points`` pixels remain, a
     deterministic random subset (NumPy generator seeded with ``seed``) is kept;
-    when fewer, the cloud is padded with weight-0 points.  Raises
-    :class:`DepthError` when fewer than ``min_points`` points remain.
+    when fewer, the cloud is padded with weight-0 points.  ``remove_planes``: drop
+    the points of that many largest planes first (:func:`off_planes`, within
+    ``plane_tolerance`` plus the depth noise), for an image without a background
+    image.  Raises :class:`DepthError` when fewer than ``min_points`` points remain.
     """
     depth = np.asarray(depth)
     if depth.dtype.kind not in "fiu":
@@ -145,14 +149,75 @@ def depth_to_cloud(
             "check the near/far range and the depth scale)"
         )
     mask = foreground_mask(depth, near, far, background, background_tolerance).reshape(-1)
-    idx = np.flatnonzero(mask)
+    idx = _drop_planes(pts, np.flatnonzero(mask), remove_planes, plane_tolerance, seed)
     if len(idx) < min_points:
         raise DepthError(
             f"{source}: only {len(idx)} points left after background removal "
-            f"(near={near} m, far={far} m{', background subtracted' if background is not None else ''}); "
-            f"at least {min_points} are needed"
+            f"(near={near} m, far={far} m{', background subtracted' if background is not None else ''}"
+            f"{_planes_note(remove_planes)}); at least {min_points} are needed"
         )
     return _subsample(pts, idx, max_points, seed)
+
+
+def _drop_planes(pts, idx, count: int, tolerance: float, seed: int) -> np.ndarray:
+    return idx[off_planes(pts[idx], count, tolerance, seed=seed)] if count else idx
+
+
+def _planes_note(count: int) -> str:
+    return f", {count} largest plane{'s' if count > 1 else ''} removed" if count else ""
+
+
+def off_planes(
+    points: np.ndarray,
+    count: int = 1,
+    tolerance: float = 0.02,
+    noise: float = 0.0045,
+    min_fraction: float = 0.1,
+    max_spread: float = 0.35,
+    iterations: int = 256,
+    seed: int = 0,
+) -> np.ndarray:
+    """Which points lie off the ``count`` largest planes (a floor, a wall): a mask.
+
+    Each plane is found by RANSAC (``iterations`` planes through 3 random points,
+    scored on at most 4096 of the points; the best one refitted by least squares
+    to its inliers).  A point is on a plane within ``tol = tolerance + noise *
+    z**2`` metres (the depth noise grows with the square of depth, like the
+    background tolerance of :func:`foreground_mask`).  A plane is removed when it
+    holds at least ``min_fraction`` of the points left and is flat: the RMS of its
+    points' distances in units of ``tol`` is at most ``max_spread`` (a floor
+    measures about 0.05; a slab cut through a curved body spreads its points over
+    the whole band, about 0.5).  The search stops at the first plane that fails.
+    Deterministic for a ``seed``."""
+    p = np.asarray(points, np.float64)
+    keep = np.ones(len(p), bool)
+    rng = np.random.default_rng(seed)
+    tol = np.maximum(tolerance + noise * p[:, 2] ** 2, 1e-6)
+    for _ in range(count):
+        idx = np.flatnonzero(keep)
+        if len(idx) < 3:
+            break
+        sample = idx if len(idx) <= 4096 else np.sort(rng.choice(idx, 4096, replace=False))
+        tri = p[rng.choice(sample, (iterations, 3))]  # (iterations, 3 points, 3)
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        norm = np.linalg.norm(n, axis=1)
+        ok = norm > 1e-12
+        if not ok.any():
+            break
+        n, a = n[ok] / norm[ok, None], tri[ok, 0]
+        dist = np.abs((p[sample] @ n.T) - np.sum(n * a, axis=1))  # (samples, hypotheses)
+        best = int(np.argmax(np.sum(dist <= tol[sample, None], axis=0)))
+        inl = idx[np.abs((p[idx] - a[best]) @ n[best]) <= tol[idx]]
+        if len(inl) < 3:
+            break
+        c = p[inl].mean(0)  # least squares: the plane through the inliers' centroid, normal of least spread
+        n_ls = np.linalg.svd(p[inl] - c, full_matrices=False)[2][-1]
+        d = np.abs((p[idx] - c) @ n_ls) / tol[idx]
+        inl = idx[d <= 1]
+        if len(inl) < max(3, min_fraction * len(idx)) or np.sqrt(np.mean(d[d <= 1] ** 2)) > max_spread:
+            break
+        keep[inl] = False
+    return keep
 
 
 def _subsample(pts: np.ndarray, idx: np.ndarray, max_points: int, seed: int) -> Cloud:
@@ -176,15 +241,21 @@ def sensor_points_to_cloud(
     seed: int = 0,
     min_points: int = 50,
     source: str = "point cloud",
-) -> Cloud:
+    remove_planes: int = 0,
+    plane_tolerance: float = 0.02,
+    return_indices: bool = False,
+):
     """Points in the sensor's frame (``(M, 3)``, metres; at the origin, looking
     along +z) -> fixed-size :class:`Cloud`, the counterpart of :func:`depth_to_cloud`.
 
-    Keeps the finite points with ``near <= z <= far``, then a deterministic random
-    subset of ``max_points`` (the same sampling as :func:`depth_to_cloud`, so the
-    foreground pixels of a depth image written out as points give the same cloud).
-    Raises :class:`DepthError` when no point is finite, none lies within the range,
-    fewer than ``min_points`` remain, or they all coincide."""
+    Keeps the finite points with ``near <= z <= far``, without the points of the
+    ``remove_planes`` largest planes (:func:`off_planes`), then a deterministic
+    random subset of ``max_points`` (the same sampling as :func:`depth_to_cloud`,
+    so the foreground pixels of a depth image written out as points give the same
+    cloud).  With ``return_indices``: ``(cloud, kept)``, the indices of every point
+    kept before the subsampling.  Raises :class:`DepthError` when no point is
+    finite, none lies within the range, fewer than ``min_points`` remain, or they
+    all coincide."""
     with np.errstate(over="ignore"):  # beyond float32: inf, dropped below
         pts = np.asarray(points, np.float32)
     if pts.ndim != 2 or pts.shape[1] != 3:
@@ -206,16 +277,16 @@ def sensor_points_to_cloud(
             f"(the points' z spans {float(zf.min()):.4g} .. {float(zf.max()):.4g}; check the near/far range, "
             "the cloud's unit and its viewpoint)"
         )
-    idx = np.flatnonzero(keep)
+    idx = _drop_planes(pts, np.flatnonzero(keep), remove_planes, plane_tolerance, seed)
     if len(idx) < min_points:
         raise DepthError(
-            f"{source}: only {len(idx)} points lie within near={near} m .. far={far} m; at least {min_points} "
-            "are needed"
+            f"{source}: only {len(idx)} points lie within near={near} m .. far={far} m"
+            f"{_planes_note(remove_planes)}; at least {min_points} are needed"
         )
-    kept = pts[idx]
-    if float(np.max(np.ptp(kept, axis=0))) < 1e-3:
+    if float(np.max(np.ptp(pts[idx], axis=0))) < 1e-3:
         raise DepthError(f"{source}: the points all lie within 1 mm of each other; not a cloud to fit")
-    return _subsample(pts, idx, max_points, seed)
+    cloud = _subsample(pts, idx, max_points, seed)
+    return (cloud, idx) if return_indices else cloud
 
 
 def cloud_view(points: np.ndarray, width: int = 640, height: int = 480) -> tuple[np.ndarray, Intrinsics]:

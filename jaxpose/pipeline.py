@@ -18,6 +18,9 @@ from .search import FitConfig, FitResult, fit_cloud
 from .skeleton import Skeleton
 
 
+MAX_PLANES = 8
+
+
 @dataclass(frozen=True)
 class DepthOptions:
     """How a depth image or point-cloud file becomes a cloud.
@@ -27,7 +30,10 @@ class DepthOptions:
     coordinates) and ``viewpoint`` (``tx,ty,tz,qw,qx,qy,qz``: the sensor's pose in
     the cloud's frame, the translation in the file's unit like a PCD ``VIEWPOINT``;
     ``None``: the file's own, identity unless a PCD header gives one).  Both:
-    ``near``/``far`` (depth along the sensor's z), ``max_points``, ``sample_seed``."""
+    ``near``/``far`` (depth along the sensor's z), ``remove_planes`` (drop the points
+    of that many largest planes, a floor or a wall, within ``plane_tolerance`` metres
+    plus the depth noise: :func:`~jaxpose.camera.off_planes`), ``max_points``,
+    ``sample_seed``."""
 
     intrinsics: str | None = "kinect"
     depth_scale: float = 0.001
@@ -39,6 +45,8 @@ class DepthOptions:
     sample_seed: int = 0
     cloud_scale: float = 1.0
     viewpoint: tuple | str | None = None
+    remove_planes: int = 0
+    plane_tolerance: float = 0.02
 
     def validate(self) -> "DepthOptions":
         """Raise :class:`ConfigError` for an impossible setting; return ``self``."""
@@ -61,7 +69,9 @@ class DepthOptions:
                 raise ConfigError(f"viewpoint {self.viewpoint!r}: {e}") from None
         if num("background_tolerance", self.background_tolerance) < 0:
             raise ConfigError(f"background_tolerance must be >= 0 metres, got {self.background_tolerance}")
-        for name in ("max_points", "sample_seed"):
+        if num("plane_tolerance", self.plane_tolerance) < 0:
+            raise ConfigError(f"plane_tolerance must be >= 0 metres, got {self.plane_tolerance}")
+        for name in ("max_points", "sample_seed", "remove_planes"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
                 raise ConfigError(f"{name} must be an integer, got {v!r}")
@@ -69,6 +79,8 @@ class DepthOptions:
             raise ConfigError(f"max_points must be >= 1, got {self.max_points}")
         if self.sample_seed < 0:
             raise ConfigError(f"sample_seed must be >= 0, got {self.sample_seed}")
+        if not 0 <= self.remove_planes <= MAX_PLANES:
+            raise ConfigError(f"remove_planes must lie within 0 .. {MAX_PLANES}, got {self.remove_planes}")
         return self
 
 
@@ -100,6 +112,7 @@ def load_observation(depth_path: str, options: DepthOptions = DepthOptions()):
     cloud = depth_to_cloud(
         depth, k, options.near, options.far, background, options.max_points, options.sample_seed,
         background_tolerance=options.background_tolerance, source=depth_path,
+        remove_planes=options.remove_planes, plane_tolerance=options.plane_tolerance,
     )
     return depth, k, cloud
 
@@ -116,11 +129,11 @@ def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions
     pf = load_points(cloud_path)
     viewpoint = parse_viewpoint(options.viewpoint) if options.viewpoint is not None else pf.viewpoint
     pts = to_sensor_frame(pf.points, viewpoint) * np.float32(options.cloud_scale)  # the viewpoint: the file's unit
-    cloud = sensor_points_to_cloud(pts, options.near, options.far, options.max_points, options.sample_seed,
-                                   source=cloud_path)
-    with np.errstate(invalid="ignore"):
-        shown = pts[np.all(np.isfinite(pts), -1) & (pts[:, 2] >= options.near) & (pts[:, 2] <= options.far)]
-    view, k = cloud_view(shown)
+    cloud, kept = sensor_points_to_cloud(
+        pts, options.near, options.far, options.max_points, options.sample_seed, source=cloud_path,
+        remove_planes=options.remove_planes, plane_tolerance=options.plane_tolerance, return_indices=True,
+    )
+    view, k = cloud_view(pts[kept])
     record = {
         "cloud": os.path.basename(cloud_path),
         "cloud_sha256": file_sha256(cloud_path),
@@ -128,6 +141,7 @@ def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions
         "points_in_file": int(len(pf.points)),
         "cloud_scale": options.cloud_scale,
         "viewpoint": [float(v) for v in viewpoint],
+        "remove_planes": options.remove_planes,
         "near": options.near,
         "far": options.far,
         "max_points": options.max_points,
@@ -146,6 +160,7 @@ def _depth_record(depth_path: str, options: DepthOptions, k: Intrinsics, cloud: 
         "background_sha256": file_sha256(options.background),
         "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height},
         "depth_scale": options.depth_scale,
+        "remove_planes": options.remove_planes,
         "near": options.near,
         "far": options.far,
         "max_points": options.max_points,

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxpose.camera import Intrinsics, depth_to_cloud, depth_to_points
+from jaxpose.camera import KINECT_V1, Intrinsics, depth_to_cloud, depth_to_points, foreground_mask, off_planes
 from jaxpose.errors import DepthError
 
 # non-square focal lengths and an off-centre principal point, so swapped axes show
@@ -137,3 +137,47 @@ def test_background_subtraction():
     # without the background every pixel with depth stays
     full = depth_to_cloud(depth, K, near=0.3, far=8.0, max_points=200, min_points=1)
     assert int(np.asarray(full.weights).sum()) == int((depth > 0).sum())
+
+
+def test_off_planes_removes_a_floor_and_a_wall_and_keeps_the_subject():
+    """A noisy floor and wall (planes written down directly) and a ball in front:
+    one plane removed takes the larger (the floor), two take both; the ball stays,
+    and a third plane is not cut through it."""
+    rng = np.random.default_rng(5)
+    u, v = rng.uniform(-1.5, 1.5, (2, 20000))
+    floor = np.stack([u, 0.9 + 0.005 * rng.normal(size=u.size), 2.5 + v], -1)  # y = 0.9 (y points down)
+    a, b = rng.uniform(-1.5, 1.5, (2, 8000))
+    wall = np.stack([a, b * 0.5, 4.0 + 0.01 * rng.normal(size=a.size)], -1)  # z = 4
+    d = rng.normal(size=(3000, 3))
+    ball = 0.25 * d / np.linalg.norm(d, axis=1, keepdims=True) + [0.1, 0.3, 2.2]
+    pts = np.concatenate([floor, wall, ball])
+    kind = np.repeat([0, 1, 2], [len(floor), len(wall), len(ball)])
+    one, two, three = (off_planes(pts, n, seed=3) for n in (1, 2, 3))
+    assert one[kind == 0].mean() < 0.01 and one[kind == 1].mean() > 0.95 and one[kind == 2].mean() > 0.97
+    assert two[kind == 1].mean() < 0.01 and two[kind == 2].mean() > 0.97
+    assert np.array_equal(three, two)  # the ball is no plane
+    assert np.array_equal(off_planes(pts, 2, seed=3), two)  # deterministic
+    assert off_planes(ball, 1).all()
+
+
+def test_plane_removal_keeps_what_background_subtraction_keeps(tmp_path):
+    """A rendered spider on a floor: the points left after removing one plane are,
+    nearly all, the points that subtracting the rendered background image leaves
+    (an independent way to find the subject)."""
+    import jaxpose.cli as cli
+    from jaxpose.io.depth_file import load_depth
+
+    assert cli.main(["render", "--skeleton", "spider", "--seed", "2", "--elevation", "30", "--floor", "--no-noise",
+                     "--size", "320x240", "--out", str(tmp_path / "d.png"), "--truth", str(tmp_path / "t.json"),
+                     "--background-out", str(tmp_path / "b.png")]) == 0
+    k = KINECT_V1._replace(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
+    depth, background = load_depth(tmp_path / "d.png"), load_depth(tmp_path / "b.png")
+    pts, _ = depth_to_points(depth, k)
+    subject = foreground_mask(depth, 0.3, 8.0, background).reshape(-1)
+    scene = np.flatnonzero(foreground_mask(depth, 0.3, 8.0).reshape(-1))
+    kept = scene[off_planes(pts[scene], 1)]
+    assert subject.sum() > 500 and len(scene) > 10 * subject.sum()
+    assert subject[kept].mean() > 0.95  # what is left is the subject
+    assert np.isin(np.flatnonzero(subject), kept).mean() > 0.9  # and most of the subject is left
+    cloud = depth_to_cloud(depth, k, max_points=4096, remove_planes=1)
+    assert int(np.sum(np.asarray(cloud.weights) > 0)) == min(4096, len(kept))

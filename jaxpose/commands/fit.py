@@ -35,6 +35,9 @@ def register(sub) -> None:
     p.add_argument("--search-lengths", action="store_true",
                    help="robot files (.urdf, MJCF): also search every link length within +-30%% (default: the model's)")
     p.add_argument("--background", help="depth images: background depth image to subtract (same size)")
+    p.add_argument("--remove-planes", type=int, default=0, metavar="N",
+                   help="drop the points of the N largest planes (a floor, a wall) before fitting; for an image "
+                        "or cloud without a background image (default 0)")
     p.add_argument("--max-points", type=int, default=1024, help="points sampled from the image or cloud (default 1024)")
     p.add_argument("--algorithm", default="ga", help="ga (default), hc, cma_es or another evosax strategy")
     p.add_argument("--population", type=int, default=FitConfig.population)
@@ -72,6 +75,10 @@ def _finite(args, dest: str, flag: str) -> float:
 
 def config_from_args(args) -> FitConfig:
     """The fit settings of the command line; :class:`ConfigError` names the offending option."""
+    from ..pipeline import MAX_PLANES
+
+    if not 0 <= args.remove_planes <= MAX_PLANES:
+        raise ConfigError(f"--remove-planes must lie within 0 .. {MAX_PLANES}, got {args.remove_planes}")
     if args.max_points < 1:
         raise ConfigError(f"--max-points must be >= 1, got {args.max_points}")
     if args.max_points > MAX_POINTS:
@@ -164,7 +171,7 @@ def depth_options(args):
     return DepthOptions(
         args.intrinsics or "kinect", 0.001 if args.depth_scale is None else args.depth_scale, args.near, args.far,
         args.background, max_points=args.max_points, cloud_scale=1.0 if args.cloud_scale is None else args.cloud_scale,
-        viewpoint=args.viewpoint,
+        viewpoint=args.viewpoint, remove_planes=args.remove_planes,
     )
 
 
