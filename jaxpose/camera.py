@@ -149,7 +149,7 @@ def depth_to_cloud(
             "check the near/far range and the depth scale)"
         )
     mask = foreground_mask(depth, near, far, background, background_tolerance).reshape(-1)
-    idx = _drop_planes(pts, np.flatnonzero(mask), remove_planes, plane_tolerance, seed)
+    idx = _drop_planes(pts, np.flatnonzero(mask), remove_planes, plane_tolerance, seed, source)
     if len(idx) < min_points:
         raise DepthError(
             f"{source}: only {len(idx)} points left after background removal "
@@ -159,65 +159,87 @@ def depth_to_cloud(
     return _subsample(pts, idx, max_points, seed)
 
 
-def _drop_planes(pts, idx, count: int, tolerance: float, seed: int) -> np.ndarray:
-    return idx[off_planes(pts[idx], count, tolerance, seed=seed)] if count else idx
-
-
-def _planes_note(count: int) -> str:
-    return f", {count} largest plane{'s' if count > 1 else ''} removed" if count else ""
-
 
 def off_planes(
     points: np.ndarray,
     count: int = 1,
     tolerance: float = 0.02,
     noise: float = 0.0045,
-    min_fraction: float = 0.1,
+    min_fraction: float = 0.2,
     max_spread: float = 0.35,
-    iterations: int = 256,
+    min_cover: float = 0.5,
     seed: int = 0,
 ) -> np.ndarray:
     """Which points lie off the ``count`` largest planes (a floor, a wall): a mask.
 
-    Each plane is found by RANSAC (``iterations`` planes through 3 random points,
-    scored on at most 4096 of the points; the best one refitted by least squares
-    to its inliers).  A point is on a plane within ``tol = tolerance + noise *
-    z**2`` metres (the depth noise grows with the square of depth, like the
-    background tolerance of :func:`foreground_mask`).  A plane is removed when it
-    holds at least ``min_fraction`` of the points left and is flat: the RMS of its
-    points' distances in units of ``tol`` is at most ``max_spread`` (a floor
-    measures about 0.05; a slab cut through a curved body spreads its points over
-    the whole band, about 0.5).  The search stops at the first plane that fails.
-    Deterministic for a ``seed``."""
-    p = np.asarray(points, np.float64)
+    Each plane is found by RANSAC: planes through 3 random points, as many as
+    find a plane holding ``min_fraction`` of the points with 99% probability
+    (575 for a fifth), scored on at most 2048 of the points; the best is refitted
+    by least squares to its inliers.  A point is on a plane within ``tol =
+    tolerance + noise * z**2`` metres (the depth noise grows with the square of
+    depth, like the background tolerance of :func:`foreground_mask`).  A plane is
+    removed only when it holds at least ``min_fraction`` of the points left, is
+    flat (the RMS of its points' distances in units of ``tol`` at most
+    ``max_spread``: a rendered floor measures 0.02-0.12, a slab cut through a body
+    0.13-0.52) and is a surface rather than a few thin parts that happen to line
+    up (its points cover at least ``min_cover`` of a 16 x 16 grid over their
+    extent in the plane: floors 0.67-0.86, a spider's legs or a body's limbs
+    0.12-0.43).  The search stops at the first plane that fails.  Float32
+    coordinates (so that a depth image and its points written as a cloud give
+    the same mask); deterministic for a ``seed``."""
+    p = np.asarray(points, np.float32).astype(np.float64)
     keep = np.ones(len(p), bool)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng([seed, 1])  # a stream of its own: the subsample draws from `seed`
     tol = np.maximum(tolerance + noise * p[:, 2] ** 2, 1e-6)
+    tries = int(np.ceil(np.log(0.01) / np.log1p(-(min_fraction ** 3)))) if 0 < min_fraction < 1 else 64
     for _ in range(count):
         idx = np.flatnonzero(keep)
         if len(idx) < 3:
             break
-        sample = idx if len(idx) <= 4096 else np.sort(rng.choice(idx, 4096, replace=False))
-        tri = p[rng.choice(sample, (iterations, 3))]  # (iterations, 3 points, 3)
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        norm = np.linalg.norm(n, axis=1)
-        ok = norm > 1e-12
-        if not ok.any():
+        sample = idx if len(idx) <= 2048 else np.sort(rng.choice(idx, 2048, replace=False))
+        best, best_n = None, -1
+        for start in range(0, tries, 256):
+            tri = p[rng.choice(sample, (min(256, tries - start), 3))]  # (hypotheses, 3 points, 3)
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            norm = np.linalg.norm(n, axis=1)
+            ok = norm > 1e-12
+            if not ok.any():
+                continue
+            n, a = n[ok] / norm[ok, None], tri[ok, 0]
+            votes = np.sum(np.abs(p[sample] @ n.T - np.sum(n * a, axis=1)) <= tol[sample, None], axis=0)
+            j = int(np.argmax(votes))
+            if votes[j] > best_n:
+                best, best_n = (n[j], a[j]), int(votes[j])
+        if best is None:
             break
-        n, a = n[ok] / norm[ok, None], tri[ok, 0]
-        dist = np.abs((p[sample] @ n.T) - np.sum(n * a, axis=1))  # (samples, hypotheses)
-        best = int(np.argmax(np.sum(dist <= tol[sample, None], axis=0)))
-        inl = idx[np.abs((p[idx] - a[best]) @ n[best]) <= tol[idx]]
-        if len(inl) < 3:
+        inl = idx[np.abs((p[idx] - best[1]) @ best[0]) <= tol[idx]]
+        if len(inl) < max(3, min_fraction * len(idx)):
             break
         c = p[inl].mean(0)  # least squares: the plane through the inliers' centroid, normal of least spread
-        n_ls = np.linalg.svd(p[inl] - c, full_matrices=False)[2][-1]
-        d = np.abs((p[idx] - c) @ n_ls) / tol[idx]
+        axes = np.linalg.svd(p[inl] - c, full_matrices=False)[2]
+        d = np.abs((p[idx] - c) @ axes[2]) / tol[idx]
         inl = idx[d <= 1]
         if len(inl) < max(3, min_fraction * len(idx)) or np.sqrt(np.mean(d[d <= 1] ** 2)) > max_spread:
             break
+        q = (p[inl] - c) @ axes[:2].T  # in-plane coordinates
+        lo, span = q.min(0), np.maximum(np.ptp(q, axis=0), 1e-9)
+        cell = np.minimum(((q - lo) / span * 16).astype(np.int64), 15)
+        if len(np.unique(cell[:, 0] * 16 + cell[:, 1])) < min_cover * 256:
+            break
         keep[inl] = False
     return keep
+
+
+def _drop_planes(pts, idx, count: int, tolerance: float, seed: int, source: str) -> np.ndarray:
+    if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
+        raise DepthError(f"{source}: remove_planes must be an integer >= 0, got {count!r}")
+    if not (np.isfinite(tolerance) and tolerance >= 0):
+        raise DepthError(f"{source}: plane_tolerance must be a finite number >= 0 (metres), got {tolerance!r}")
+    return idx[off_planes(pts[idx], count, tolerance, seed=seed)] if count else idx
+
+
+def _planes_note(count: int) -> str:
+    return f", {count} largest plane{'s' if count > 1 else ''} removed" if count else ""
 
 
 def _subsample(pts: np.ndarray, idx: np.ndarray, max_points: int, seed: int) -> Cloud:
@@ -277,7 +299,7 @@ def sensor_points_to_cloud(
             f"(the points' z spans {float(zf.min()):.4g} .. {float(zf.max()):.4g}; check the near/far range, "
             "the cloud's unit and its viewpoint)"
         )
-    idx = _drop_planes(pts, np.flatnonzero(keep), remove_planes, plane_tolerance, seed)
+    idx = _drop_planes(pts, np.flatnonzero(keep), remove_planes, plane_tolerance, seed, source)
     if len(idx) < min_points:
         raise DepthError(
             f"{source}: only {len(idx)} points lie within near={near} m .. far={far} m"

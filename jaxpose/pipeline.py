@@ -142,6 +142,7 @@ def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions
         "cloud_scale": options.cloud_scale,
         "viewpoint": [float(v) for v in viewpoint],
         "remove_planes": options.remove_planes,
+        "plane_tolerance": options.plane_tolerance,
         "near": options.near,
         "far": options.far,
         "max_points": options.max_points,
@@ -149,6 +150,15 @@ def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions
         "sample_seed": options.sample_seed,
     }
     return view, k, cloud, record
+
+
+def check_input(path: str, options: DepthOptions = DepthOptions()) -> None:
+    """Read and check one input (a depth image or a point cloud) as a fit would;
+    raise the fit's error for a bad one."""
+    if is_cloud_file(path):
+        load_cloud_observation(path, options)
+    else:
+        load_observation(path, options)
 
 
 def _depth_record(depth_path: str, options: DepthOptions, k: Intrinsics, cloud: Cloud) -> dict:
@@ -161,6 +171,7 @@ def _depth_record(depth_path: str, options: DepthOptions, k: Intrinsics, cloud: 
         "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height},
         "depth_scale": options.depth_scale,
         "remove_planes": options.remove_planes,
+        "plane_tolerance": options.plane_tolerance,
         "near": options.near,
         "far": options.far,
         "max_points": options.max_points,

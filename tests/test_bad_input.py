@@ -139,6 +139,8 @@ def make_inputs(d: Path) -> None:
     (d / "broken.urdf").write_text('<robot name="r"><link name="a">')
     (d / "broken.xml").write_text("<mujoco><worldbody>")
     (d / "outdir").mkdir()
+    (d / "sub").mkdir()
+    np.save(d / "sub" / "good.npy", good)
     (d / "readonly").mkdir()
     os.chmod(d / "readonly", 0o555)
 
@@ -382,7 +384,8 @@ def test_library_pipeline_validates_options(inputs):
 
     for bad, match in [(dict(near=2.0, far=1.0), "near < far"), (dict(depth_scale=0.0), "depth_scale"),
                        (dict(max_points=0), "max_points"), (dict(background_tolerance=-1.0), "background_tolerance"),
-                       (dict(far=float("inf")), "finite")]:
+                       (dict(far=float("inf")), "finite"), (dict(remove_planes=9), "remove_planes"),
+                       (dict(remove_planes=1.5), "remove_planes"), (dict(plane_tolerance=-0.1), "plane_tolerance")]:
         with pytest.raises(ConfigError, match=match):
             load_observation(str(inputs / "good.npy"), DepthOptions(**bad))
     with pytest.raises(ConfigError, match="population"):

@@ -117,6 +117,39 @@ def test_same_seed_gives_identical_numbers(ga_result, scene, capsys):
     assert not [f for f in os.listdir(scene) if f.startswith(".tmp-")]
 
 
+def test_several_inputs_give_each_the_result_of_its_own_run(ga_result, scene, tmp_path, capsys):
+    """``fit A B --out-dir D`` writes D/A.json and D/B.json, each with every number of
+    a run on that input alone; the inputs are a depth image and a point cloud."""
+    pytest.importorskip("matplotlib")
+    from jaxpose.camera import depth_to_points, foreground_mask
+    from jaxpose.io.depth_file import parse_intrinsics
+
+    depth = load_depth(scene / "depth.png")
+    pts, _ = depth_to_points(depth, parse_intrinsics(str(scene / "truth.json"), depth.shape))
+    np.save(tmp_path / "cloud.npy", pts[foreground_mask(depth).reshape(-1)].astype(np.float32))
+    alone = tmp_path / "alone.json"
+    _run(capsys, "fit", tmp_path / "cloud.npy", "--seed", "7", "--out", alone, *FIT)
+    out_dir = tmp_path / "results"
+    out_dir.mkdir()
+    stdout, _ = _run(capsys, "fit", scene / "depth.png", tmp_path / "cloud.npy", "--intrinsics", scene / "truth.json",
+                     "--seed", "7", "--out-dir", out_dir, "--plots", *[a for a in FIT if a != "--quiet"])
+    assert sorted(os.listdir(out_dir)) == ["cloud.json", "cloud.png", "depth.json", "depth.png"]
+    assert stdout.startswith("1/2 depth.png spider: cost ") and "\n2/2 cloud.npy spider: cost " in stdout
+    strip = lambda d: {k: v for k, v in d.items() if k != "timing"}  # noqa: E731
+    assert strip(json.loads((out_dir / "depth.json").read_text())) == strip(ga_result)
+    assert strip(json.loads((out_dir / "cloud.json").read_text())) == strip(json.loads(alone.read_text()))
+
+
+def test_a_bad_input_among_several_writes_nothing(scene, tmp_path, capsys):
+    out_dir = tmp_path / "results"
+    out_dir.mkdir()
+    (tmp_path / "broken.ply").write_text("not a cloud\n")
+    rc = main(["fit", str(scene / "depth.png"), str(tmp_path / "broken.ply"), "--intrinsics", str(scene / "truth.json"),
+               "--out-dir", str(out_dir)] + FIT)
+    assert rc == 2 and "broken.ply: not a PLY file" in capsys.readouterr().err
+    assert os.listdir(out_dir) == []
+
+
 @pytest.mark.parametrize("algorithm", ["hc", "cma_es"])
 def test_other_algorithms_run_through_the_same_command(algorithm, scene, capsys):
     out = scene / f"{algorithm}.json"

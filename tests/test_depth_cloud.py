@@ -179,5 +179,15 @@ def test_plane_removal_keeps_what_background_subtraction_keeps(tmp_path):
     assert subject.sum() > 500 and len(scene) > 10 * subject.sum()
     assert subject[kept].mean() > 0.95  # what is left is the subject
     assert np.isin(np.flatnonzero(subject), kept).mean() > 0.9  # and most of the subject is left
-    cloud = depth_to_cloud(depth, k, max_points=4096, remove_planes=1)
-    assert int(np.sum(np.asarray(cloud.weights) > 0)) == min(4096, len(kept))
+    for seed in range(6):  # asking for more planes than the scene has does not cut into the spider
+        assert np.array_equal(off_planes(pts[scene], 3, seed=seed), off_planes(pts[scene], 1, seed=seed)), seed
+    # a depth image and its foreground written as points give the same cloud with a plane removed
+    from jaxpose.camera import sensor_points_to_cloud
+
+    a = depth_to_cloud(depth, k, max_points=1024, seed=3, remove_planes=2)
+    b = sensor_points_to_cloud(pts[scene].astype(np.float32), max_points=1024, seed=3, remove_planes=2)
+    assert np.array_equal(a.points, b.points) and np.array_equal(a.weights, b.weights)
+    with pytest.raises(DepthError, match="remove_planes must be an integer"):
+        depth_to_cloud(depth, k, remove_planes=-1)
+    with pytest.raises(DepthError, match="plane_tolerance"):
+        sensor_points_to_cloud(pts[scene], plane_tolerance=float("nan"), remove_planes=1)

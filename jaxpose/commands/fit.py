@@ -16,9 +16,10 @@ MAX_POINTS = 1_000_000
 
 
 def register(sub) -> None:
-    p = sub.add_parser("fit", help="fit a skeleton to a depth image or a point cloud",
-                       description="Fit a skeleton to a depth image or a point cloud.")
-    p.add_argument("depth", metavar="INPUT",
+    p = sub.add_parser("fit", help="fit a skeleton to depth images or point clouds",
+                       description="Fit a skeleton to a depth image or a point cloud (several with --out-dir: "
+                                   "every input is checked first, the search is compiled once).")
+    p.add_argument("depth", metavar="INPUT", nargs="+",
                    help="depth image: 16-bit PNG (millimetres) or 2-D .npy (metres); or point cloud in the "
                         "sensor's frame: .ply, .pcd, .xyz, float (N, 3) or (H, W, 3) .npy (metres, see "
                         "--cloud-scale, --viewpoint)")
@@ -59,9 +60,12 @@ def register(sub) -> None:
     p.add_argument("--free-space-weight", type=float, default=ObjectiveConfig.free_space_weight,
                    help="weight of the free-space term (0: the paper's objective alone)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default="result.json", help="result JSON (default result.json)")
+    p.add_argument("--out", help="result JSON (default result.json; one input only)")
     p.add_argument("--plot", help="PNG with the fitted skeleton drawn over the depth image, or over a "
-                                     "view of the cloud from the sensor (needs matplotlib)")
+                                     "view of the cloud from the sensor (needs matplotlib; one input only)")
+    p.add_argument("--out-dir", metavar="DIR",
+                   help="write DIR/<input name>.json for every input (needed for several inputs)")
+    p.add_argument("--plots", action="store_true", help="with --out-dir: also DIR/<input name>.png")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -136,38 +140,67 @@ def _same_file(a: str | None, b: str | None) -> bool:
         return os.path.abspath(a) == os.path.abspath(b)
 
 
-def check_conflicts(args) -> None:
+def outputs(args) -> list[tuple[str, str, str | None]]:
+    """``(input, result JSON, plot PNG or None)`` for every input; :class:`ConfigError`
+    for a combination of --out/--plot/--out-dir/--plots that does not fit the inputs."""
+    if args.out_dir is None:
+        if len(args.depth) > 1:
+            raise ConfigError(f"{len(args.depth)} inputs: give --out-dir DIR (each result goes to DIR/<name>.json)")
+        if args.plots:
+            raise ConfigError("--plots works with --out-dir; for one input give --plot FILE")
+        return [(args.depth[0], args.out or "result.json", args.plot)]
+    for flag in ("out", "plot"):
+        if getattr(args, flag):
+            raise ConfigError(f"--{flag} and --out-dir exclude each other (with --out-dir every result is "
+                              "DIR/<name>.json, plots DIR/<name>.png with --plots)")
+    if not os.path.isdir(args.out_dir):
+        raise ConfigError(f"--out-dir {args.out_dir}: not a directory")
+    seen, out = {}, []
+    for path in args.depth:
+        stem = os.path.splitext(os.path.basename(path))[0]
+        if stem in seen:
+            raise ConfigError(f"inputs {seen[stem]} and {path} would both write {stem}.json in --out-dir")
+        seen[stem] = path
+        out.append((path, os.path.join(args.out_dir, stem + ".json"),
+                    os.path.join(args.out_dir, stem + ".png") if args.plots else None))
+    return out
+
+
+def check_conflicts(args, jobs) -> None:
     """Outputs must differ from each other and from every input."""
+    from ..io.cloud_file import is_cloud_file
     from ..io.skeleton_file import resolve_skeleton_path
 
-    if _same_file(args.out, args.plot):
-        raise ConfigError(f"--out and --plot name the same file {args.out}")
-    from ..io.cloud_file import is_cloud_file
-
-    kind = "the point cloud" if is_cloud_file(args.depth) else "the depth image"
-    inputs = [(kind, args.depth), ("--background", args.background),
-              ("--skeleton", resolve_skeleton_path(args.skeleton)), ("--intrinsics", args.intrinsics)]
-    for flag, out in (("--out", args.out), ("--plot", args.plot)):
-        for what, path in inputs:
-            if _same_file(out, path):
-                raise ConfigError(f"{flag} {out} is also {what}; refusing to overwrite an input")
+    inputs = [("the point cloud" if is_cloud_file(p) else "the depth image", p) for p in args.depth]
+    inputs += [("--background", args.background), ("--skeleton", resolve_skeleton_path(args.skeleton)),
+               ("--intrinsics", args.intrinsics)]
+    for _, result, plot in jobs:
+        if _same_file(result, plot):
+            raise ConfigError(f"--out and --plot name the same file {result}")
+        for flag, out in (("--out", result), ("--plot", plot)):
+            for what, path in inputs:
+                if _same_file(out, path):
+                    raise ConfigError(f"{flag} {out} is also {what}; refusing to overwrite an input")
 
 
 def depth_options(args):
-    """The input settings; :class:`ConfigError` for an option that does not apply to the input's kind."""
+    """The input settings; :class:`ConfigError` for an option that applies to none of the inputs
+    (an option for depth images when every input is a point cloud, or the other way round)."""
     from ..io.cloud_file import is_cloud_file
     from ..pipeline import DepthOptions
 
-    if is_cloud_file(args.depth):
+    clouds = [is_cloud_file(p) for p in args.depth]
+    subject = args.depth[0] if len(clouds) == 1 else "every input"
+    if all(clouds):
         for flag, value in (("--intrinsics", args.intrinsics), ("--depth-scale", args.depth_scale),
                             ("--background", args.background)):
             if value is not None:
-                raise ConfigError(f"{flag} is for depth images; {args.depth} is a point cloud "
+                raise ConfigError(f"{flag} is for depth images; {subject} is a point cloud "
                                   "(see --cloud-scale and --viewpoint)")
-    else:
+    if not any(clouds):
         for flag, value in (("--cloud-scale", args.cloud_scale), ("--viewpoint", args.viewpoint)):
             if value is not None:
-                raise ConfigError(f"{flag} is for point clouds; {args.depth} is a depth image")
+                raise ConfigError(f"{flag} is for point clouds; {subject} is a depth image")
     return DepthOptions(
         args.intrinsics or "kinect", 0.001 if args.depth_scale is None else args.depth_scale, args.near, args.far,
         args.background, max_points=args.max_points, cloud_scale=1.0 if args.cloud_scale is None else args.cloud_scale,
@@ -177,45 +210,53 @@ def depth_options(args):
 
 def run(args: argparse.Namespace) -> int:
     from ..io.results import write_json
-    from ..pipeline import fit_depth_file, load_fit_skeleton
+    from ..pipeline import check_input, fit_depth_file, load_fit_skeleton
 
     config = config_from_args(args)
-    check_conflicts(args)
+    jobs = outputs(args)
+    check_conflicts(args, jobs)
     if args.search_lengths:
         from ..io.skeleton_file import ROBOT_EXTENSIONS, resolve_skeleton_path
 
         if os.path.splitext(resolve_skeleton_path(args.skeleton))[1].lower() not in ROBOT_EXTENSIONS:
             raise ConfigError(f"--search-lengths: only for robot files (.urdf, MJCF .xml); {args.skeleton} is a "
                               "native skeleton, whose links set their own length_range")
-    check_output_path(args.out, "--out")
-    if args.plot:
-        check_output_path(args.plot, "--plot")
+    for _, result, plot in jobs:
+        check_output_path(result, "--out")
+        if plot:
+            check_output_path(plot, "--plot")
+    if any(plot for _, _, plot in jobs):
         from ..viz import _pyplot
 
         _pyplot()  # fail before the search if matplotlib is missing
     options = depth_options(args)
     skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths)
     config = config.for_skeleton(skel)  # the generations: the bar's total
-    bar = ProgressBar(config.generations, quiet=args.quiet)
-    try:
-        out = fit_depth_file(args.depth, skel, config, args.seed, options, progress=bar.update,
-                             search_lengths=args.search_lengths, skeleton_file=skel_file)
-    finally:
-        bar.close()  # end the progress line, also before an error message or Ctrl-C
-    write_json(args.out, out.document)
-    msg = (f"{out.skeleton.name}: cost {out.document['cost']:.5f}, "
-           f"{out.document['evaluations']['objective']} evaluations, "
-           f"{out.document['timing']['wall_seconds']:.1f} s -> {args.out}")
-    if args.plot:
-        from ..viz import overlay_figure, save_figure
+    if len(jobs) > 1:
+        for path, _, _ in jobs:  # every input is read and checked before the first search
+            check_input(path, options)
+    for i, (path, result, plot) in enumerate(jobs):
+        label = f"{i + 1}/{len(jobs)} {os.path.basename(path)} " if len(jobs) > 1 else ""
+        bar = ProgressBar(config.generations, quiet=args.quiet, label=label)
+        try:
+            out = fit_depth_file(path, skel, config, args.seed, options, progress=bar.update,
+                                 search_lengths=args.search_lengths, skeleton_file=skel_file)
+        finally:
+            bar.close()  # end the progress line, also before an error message or Ctrl-C
+        write_json(result, out.document)
+        msg = (f"{label}{out.skeleton.name}: cost {out.document['cost']:.5f}, "
+               f"{out.document['evaluations']['objective']} evaluations, "
+               f"{out.document['timing']['wall_seconds']:.1f} s -> {result}")
+        if plot:
+            from ..viz import overlay_figure, save_figure
 
-        fig = overlay_figure(out.depth, out.intrinsics, out.document["links"],
-                             title=f"{out.skeleton.name} ({config.algorithm}), cost {out.document['cost']:.4f}")
-        save_figure(fig, args.plot)
-        msg += f", {args.plot}"
-    if not args.quiet:
-        print(msg)
+            fig = overlay_figure(out.depth, out.intrinsics, out.document["links"],
+                                 title=f"{out.skeleton.name} ({config.algorithm}), cost {out.document['cost']:.4f}")
+            save_figure(fig, plot)
+            msg += f", {plot}"
+        if not args.quiet:
+            print(msg, flush=True)
     return 0
 
 
-__all__ = ["register", "run", "config_from_args", "depth_options"]
+__all__ = ["register", "run", "config_from_args", "depth_options", "outputs"]

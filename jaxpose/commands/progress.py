@@ -16,8 +16,9 @@ class ProgressBar:
     Silent when stderr is not a terminal or when ``quiet``.
     """
 
-    def __init__(self, total: int, quiet: bool = False, stream=None, width: int = 30):
+    def __init__(self, total: int, quiet: bool = False, stream=None, width: int = 30, label: str = ""):
         self.total = total
+        self.label = label
         self.stream = stream or sys.stderr
         self.enabled = not quiet and hasattr(self.stream, "isatty") and self.stream.isatty()
         self.width = width
@@ -32,7 +33,7 @@ class ProgressBar:
         filled = int(frac * self.width)
         bar = "#" * filled + "-" * (self.width - filled)
         self.stream.write(
-            f"\r[{bar}] gen {generation}/{self.total}  best {best:.5f}  {evaluations / dt:,.0f} evals/s "
+            f"\r{self.label}[{bar}] gen {generation}/{self.total}  best {best:.5f}  {evaluations / dt:,.0f} evals/s "
         )
         self.stream.flush()
         self.shown = True
