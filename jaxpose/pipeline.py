@@ -141,13 +141,7 @@ def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions
         "points_in_file": int(len(pf.points)),
         "cloud_scale": options.cloud_scale,
         "viewpoint": [float(v) for v in viewpoint],
-        "remove_planes": options.remove_planes,
-        "plane_tolerance": options.plane_tolerance,
-        "near": options.near,
-        "far": options.far,
-        "max_points": options.max_points,
-        "points_used": int(np.sum(np.asarray(cloud.weights) > 0)),
-        "sample_seed": options.sample_seed,
+        **_sampling_record(options, cloud),
     }
     return view, k, cloud, record
 
@@ -170,6 +164,13 @@ def _depth_record(depth_path: str, options: DepthOptions, k: Intrinsics, cloud: 
         "background_sha256": file_sha256(options.background),
         "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height},
         "depth_scale": options.depth_scale,
+        **_sampling_record(options, cloud),
+    }
+
+
+def _sampling_record(options: DepthOptions, cloud: Cloud) -> dict:
+    """What the result file records, for either kind of input, about how the cloud was chosen."""
+    return {
         "remove_planes": options.remove_planes,
         "plane_tolerance": options.plane_tolerance,
         "near": options.near,
