@@ -120,7 +120,6 @@ def test_same_seed_gives_identical_numbers(ga_result, scene, capsys):
 def test_several_inputs_give_each_the_result_of_its_own_run(ga_result, scene, tmp_path, capsys):
     """``fit A B --out-dir D`` writes D/A.json and D/B.json, each with every number of
     a run on that input alone; the inputs are a depth image and a point cloud."""
-    pytest.importorskip("matplotlib")
     from jaxpose.camera import depth_to_points, foreground_mask
     from jaxpose.io.depth_file import parse_intrinsics
 
@@ -132,12 +131,30 @@ def test_several_inputs_give_each_the_result_of_its_own_run(ga_result, scene, tm
     out_dir = tmp_path / "results"
     out_dir.mkdir()
     stdout, _ = _run(capsys, "fit", scene / "depth.png", tmp_path / "cloud.npy", "--intrinsics", scene / "truth.json",
-                     "--seed", "7", "--out-dir", out_dir, "--plots", *[a for a in FIT if a != "--quiet"])
-    assert sorted(os.listdir(out_dir)) == ["cloud.json", "cloud.png", "depth.json", "depth.png"]
+                     "--seed", "7", "--out-dir", out_dir, *[a for a in FIT if a != "--quiet"])
+    assert sorted(os.listdir(out_dir)) == ["cloud.json", "depth.json"]
     assert stdout.startswith("1/2 depth.png spider: cost ") and "\n2/2 cloud.npy spider: cost " in stdout
     strip = lambda d: {k: v for k, v in d.items() if k != "timing"}  # noqa: E731
     assert strip(json.loads((out_dir / "depth.json").read_text())) == strip(ga_result)
     assert strip(json.loads((out_dir / "cloud.json").read_text())) == strip(json.loads(alone.read_text()))
+
+
+def test_several_inputs_with_a_background_and_plots(scene, tmp_path, capsys):
+    """A background image applies to the depth images of a mixed batch (here one that
+    measures nothing, so it removes nothing) and leaves the clouds alone; --plots."""
+    pytest.importorskip("matplotlib")
+    import imageio.v3 as iio
+
+    iio.imwrite(tmp_path / "blank.png", np.zeros((120, 160), np.uint16))
+    np.save(tmp_path / "cloud.npy", np.random.default_rng(0).normal([0, 0, 1.5], 0.2, (300, 3)).astype(np.float32))
+    out_dir = tmp_path / "results"
+    out_dir.mkdir()
+    _run(capsys, "fit", scene / "depth.png", tmp_path / "cloud.npy", "--intrinsics", scene / "truth.json",
+         "--background", tmp_path / "blank.png", "--out-dir", out_dir, "--plots", *FIT)
+    assert sorted(os.listdir(out_dir)) == ["cloud.json", "cloud.png", "depth.json", "depth.png"]
+    depth = json.loads((out_dir / "depth.json").read_text())
+    assert depth["input"]["background"] == "blank.png"
+    assert "background" not in json.loads((out_dir / "cloud.json").read_text())["input"]
 
 
 def test_a_bad_input_among_several_writes_nothing(scene, tmp_path, capsys):

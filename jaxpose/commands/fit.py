@@ -19,7 +19,7 @@ def register(sub) -> None:
     p = sub.add_parser("fit", help="fit a skeleton to depth images or point clouds",
                        description="Fit a skeleton to a depth image or a point cloud (several with --out-dir: "
                                    "every input is checked first, the search is compiled once).")
-    p.add_argument("depth", metavar="INPUT", nargs="+",
+    p.add_argument("depth", metavar="INPUT", nargs="+",  # written together, before or after the options
                    help="depth image: 16-bit PNG (millimetres) or 2-D .npy (metres); or point cloud in the "
                         "sensor's frame: .ply, .pcd, .xyz, float (N, 3) or (H, W, 3) .npy (metres, see "
                         "--cloud-scale, --viewpoint)")
@@ -158,9 +158,9 @@ def outputs(args) -> list[tuple[str, str, str | None]]:
     seen, out = {}, []
     for path in args.depth:
         stem = os.path.splitext(os.path.basename(path))[0]
-        if stem in seen:
-            raise ConfigError(f"inputs {seen[stem]} and {path} would both write {stem}.json in --out-dir")
-        seen[stem] = path
+        if stem.casefold() in seen:  # case-insensitive file systems would merge A.json and a.json
+            raise ConfigError(f"inputs {seen[stem.casefold()]} and {path} would both write {stem}.json in --out-dir")
+        seen[stem.casefold()] = path
         out.append((path, os.path.join(args.out_dir, stem + ".json"),
                     os.path.join(args.out_dir, stem + ".png") if args.plots else None))
     return out
@@ -174,10 +174,11 @@ def check_conflicts(args, jobs) -> None:
     inputs = [("the point cloud" if is_cloud_file(p) else "the depth image", p) for p in args.depth]
     inputs += [("--background", args.background), ("--skeleton", resolve_skeleton_path(args.skeleton)),
                ("--intrinsics", args.intrinsics)]
+    flags = ("--out-dir", "--plots") if args.out_dir else ("--out", "--plot")
     for _, result, plot in jobs:
         if _same_file(result, plot):
             raise ConfigError(f"--out and --plot name the same file {result}")
-        for flag, out in (("--out", result), ("--plot", plot)):
+        for flag, out in zip(flags, (result, plot)):
             for what, path in inputs:
                 if _same_file(out, path):
                     raise ConfigError(f"{flag} {out} is also {what}; refusing to overwrite an input")
@@ -209,6 +210,7 @@ def depth_options(args):
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..io.cloud_file import is_cloud_file
     from ..io.results import write_json
     from ..pipeline import check_input, fit_depth_file, load_fit_skeleton
 
@@ -221,10 +223,11 @@ def run(args: argparse.Namespace) -> int:
         if os.path.splitext(resolve_skeleton_path(args.skeleton))[1].lower() not in ROBOT_EXTENSIONS:
             raise ConfigError(f"--search-lengths: only for robot files (.urdf, MJCF .xml); {args.skeleton} is a "
                               "native skeleton, whose links set their own length_range")
+    flags = ("--out-dir", "--plots") if args.out_dir else ("--out", "--plot")
     for _, result, plot in jobs:
-        check_output_path(result, "--out")
+        check_output_path(result, flags[0])
         if plot:
-            check_output_path(plot, "--plot")
+            check_output_path(plot, flags[1])
     if any(plot for _, _, plot in jobs):
         from ..viz import _pyplot
 
@@ -232,28 +235,31 @@ def run(args: argparse.Namespace) -> int:
     options = depth_options(args)
     skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths)
     config = config.for_skeleton(skel)  # the generations: the bar's total
+    # a mixed batch: the depth-image options (a background) leave the clouds alone
+    per_input = {path: dataclasses.replace(options, background=None) if is_cloud_file(path) else options
+                 for path, _, _ in jobs}
     if len(jobs) > 1:
         for path, _, _ in jobs:  # every input is read and checked before the first search
-            check_input(path, options)
+            check_input(path, per_input[path])
     for i, (path, result, plot) in enumerate(jobs):
         label = f"{i + 1}/{len(jobs)} {os.path.basename(path)} " if len(jobs) > 1 else ""
         bar = ProgressBar(config.generations, quiet=args.quiet, label=label)
         try:
-            out = fit_depth_file(path, skel, config, args.seed, options, progress=bar.update,
+            out = fit_depth_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
                                  search_lengths=args.search_lengths, skeleton_file=skel_file)
         finally:
             bar.close()  # end the progress line, also before an error message or Ctrl-C
-        write_json(result, out.document)
         msg = (f"{label}{out.skeleton.name}: cost {out.document['cost']:.5f}, "
                f"{out.document['evaluations']['objective']} evaluations, "
                f"{out.document['timing']['wall_seconds']:.1f} s -> {result}")
-        if plot:
+        if plot:  # the plot first: a result file always has its plot beside it
             from ..viz import overlay_figure, save_figure
 
             fig = overlay_figure(out.depth, out.intrinsics, out.document["links"],
                                  title=f"{out.skeleton.name} ({config.algorithm}), cost {out.document['cost']:.4f}")
             save_figure(fig, plot)
             msg += f", {plot}"
+        write_json(result, out.document)
         if not args.quiet:
             print(msg, flush=True)
     return 0
