@@ -4,7 +4,8 @@ Every subcommand lives in :mod:`jaxpose.commands` and registers itself.  Bad
 input (a documented :class:`~jaxpose.errors.JaxposeError`, or arguments the
 parser rejects) ends with one line ``jaxpose: error: <message>`` on stderr and
 exit status 2; an operating-system error while reading or writing a file ends
-with one such line and status 1; Ctrl-C with one line and status 130.  The
+with one such line and status 1; Ctrl-C with one line and status 130; a closed
+output pipe (``| head``) quietly with status 141, as a shell's tools do.  The
 messages are listed in docs/errors.md.
 """
 
@@ -88,6 +89,9 @@ def main(argv=None) -> int:
     except JaxposeError as e:
         print(f"jaxpose: error: {_one_line(e)}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # `jaxpose eval ... | head`: the reader has gone, nothing to report
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - no flush of the dead pipe at exit
+        return 141
     except OSError as e:  # e.g. a disk that fills up while writing
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
         print(f"jaxpose: error: {where}{e.strerror or _one_line(e)}", file=sys.stderr)

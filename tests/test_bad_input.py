@@ -335,6 +335,20 @@ def test_out_folder_on_a_read_only_file_system(inputs, tmp_path, capsys, monkeyp
                    "(Read-only file system)"]
 
 
+def test_a_closed_output_pipe_is_not_an_error(capsys, monkeypatch):
+    """``jaxpose skeleton spider --genome | head -1``: the reader leaves; no error line."""
+    class ClosedPipe:
+        def write(self, text):
+            raise BrokenPipeError(errno.EPIPE, "Broken pipe")
+
+        def flush(self):
+            pass
+
+    monkeypatch.setattr(sys, "stdout", ClosedPipe())
+    assert cli.main(["skeleton", "spider", "--genome"]) == 141
+    assert capsys.readouterr().err == ""
+
+
 def test_help_and_version_are_not_errors(capsys):
     assert cli.main(["--version"]) == 0
     assert cli.main(["fit", "--help"]) == 0

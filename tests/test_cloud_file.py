@@ -338,3 +338,17 @@ def test_cloud_view_shows_every_point_from_the_sensor():
     assert np.all((uv >= 0) & (uv < [320, 240]))
     assert np.all(depth[uv[:, 1], uv[:, 0]] <= pts[:, 2] + 1e-6)
     assert np.isfinite(depth).sum() >= len(np.unique(uv, axis=0))
+
+
+def test_render_writes_the_depth_image_as_a_cloud(tmp_path):
+    """``jaxpose render --cloud``: every measured pixel of the written image, as points."""
+    import jaxpose.cli as cli
+    from jaxpose.io.depth_file import load_depth, parse_intrinsics
+
+    assert cli.main(["render", "--skeleton", "spider", "--size", "160x120", "--floor", "--out", str(tmp_path / "d.png"),
+                     "--truth", str(tmp_path / "t.json"), "--cloud", str(tmp_path / "d.ply")]) == 0
+    depth = load_depth(tmp_path / "d.png")
+    pts, valid = depth_to_points(depth, parse_intrinsics(str(tmp_path / "t.json"), depth.shape))
+    pf = load_points(tmp_path / "d.ply")
+    assert pf.format == "ply binary_little_endian" and valid.sum() > 1000
+    assert same_points(pf.points, pts[valid].astype(np.float32))

@@ -36,6 +36,9 @@ def register(sub) -> None:
     p.add_argument("--truth", default=None, metavar="JSON", help="ground truth to write")
     p.add_argument("--background-out", default=None, metavar="PNG",
                    help="background-only depth image to write (needs --floor or --clutter)")
+    p.add_argument("--cloud", default=None, metavar="PLY",
+                   help="also write every measured pixel of the depth image as a point cloud (binary PLY, "
+                        "camera frame, metres)")
     p.set_defaults(func=run)
 
 
@@ -66,7 +69,7 @@ def run(args) -> int:
     if not 0 <= args.seed < 2**32:
         raise ConfigError(f"--seed must lie in 0 .. 2**32-1, got {args.seed}")
     outputs = [(flag, p) for flag, p in (("--out", args.out), ("--truth", args.truth),
-                                         ("--background-out", args.background_out)) if p]
+                                         ("--background-out", args.background_out), ("--cloud", args.cloud)) if p]
     for i, (flag, p) in enumerate(outputs):
         for flag2, p2 in outputs[i + 1:]:
             if os.path.abspath(p) == os.path.abspath(p2):
@@ -121,7 +124,16 @@ def run(args) -> int:
         save_depth_png(args.out, view.depth)
         if args.background_out:
             save_depth_png(args.background_out, view.background)
+    if args.cloud:
+        from ..camera import depth_to_points
+        from ..io.cloud_file import save_points_ply
+        from ..io.depth_file import load_depth
+
+        stored = load_depth(args.out)  # the image as written (millimetres), so that both inputs hold the same depths
+        pts, valid = depth_to_points(stored, k)
+        save_points_ply(args.cloud, pts[valid])
     print(f"{args.out}: {k.width}x{k.height} depth image of {skel.name} ({seen} pixels with depth)"
+          + (f"; cloud {args.cloud}" if args.cloud else "")
           + (f"; truth {args.truth}" if args.truth else "")
           + (f"; background {args.background_out}" if args.background_out else ""))
     return 0

@@ -477,3 +477,14 @@ def to_sensor_frame(points: np.ndarray, viewpoint) -> np.ndarray:
         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
     ])
     return ((np.asarray(points, np.float64) - t) @ r).astype(np.float32)
+
+
+def save_points_ply(path: str, points: np.ndarray) -> None:
+    """Write ``(M, 3)`` points as a binary little-endian PLY (float x, y, z), atomically."""
+    from .results import atomic_write
+
+    pts = np.ascontiguousarray(points, "<f4").reshape(-1, 3)
+    head = (f"ply\nformat binary_little_endian 1.0\ncomment jaxpose: sensor frame (x right, y down, z forward), "
+            f"metres\nelement vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+            "end_header\n").encode()
+    atomic_write(path, lambda f: (f.write(head), f.write(pts.tobytes())), binary=True)
