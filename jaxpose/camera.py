@@ -294,10 +294,13 @@ def sensor_points_to_cloud(
         keep = finite & (z >= near) & (z <= far)
     if not keep.any():
         zf = z[finite]
+        hint = ("the cloud's unit and its viewpoint" if np.median(zf) > 0 else
+                "most points lie behind the sensor: for a cloud in the OpenGL convention (y up, z towards the "
+                "viewer) give --viewpoint 0,0,0,0,1,0,0")
         raise DepthError(
             f"{source}: no point lies within near={near} m .. far={far} m in front of the sensor "
             f"(the points' z spans {float(zf.min()):.4g} .. {float(zf.max()):.4g}; check the near/far range, "
-            "the cloud's unit and its viewpoint)"
+            f"{hint})"
         )
     idx = _drop_planes(pts, np.flatnonzero(keep), remove_planes, plane_tolerance, seed, source)
     if len(idx) < min_points:

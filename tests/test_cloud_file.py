@@ -352,3 +352,19 @@ def test_render_writes_the_depth_image_as_a_cloud(tmp_path):
     pf = load_points(tmp_path / "d.ply")
     assert pf.format == "ply binary_little_endian" and valid.sum() > 1000
     assert same_points(pf.points, pts[valid].astype(np.float32))
+
+
+def test_an_opengl_cloud_is_named_and_turned_by_the_documented_viewpoint(tmp_path):
+    """A cloud in the OpenGL convention (y up, z towards the viewer) lies behind our
+    sensor: the error says which --viewpoint turns it, and that viewpoint gives the
+    very cloud of the same points in our convention."""
+    from jaxpose.pipeline import DepthOptions, load_cloud_observation
+
+    ours = POINTS[8:]
+    np.save(tmp_path / "cv.npy", ours)
+    np.save(tmp_path / "gl.npy", ours * np.float32([1, -1, -1]))
+    with pytest.raises(DepthError, match=r"OpenGL convention .* --viewpoint 0,0,0,0,1,0,0"):
+        load_cloud_observation(str(tmp_path / "gl.npy"))
+    a = load_cloud_observation(str(tmp_path / "gl.npy"), DepthOptions(viewpoint="0,0,0,0,1,0,0"))[2]
+    b = load_cloud_observation(str(tmp_path / "cv.npy"))[2]
+    assert np.array_equal(a.points, b.points) and np.array_equal(a.weights, b.weights)
