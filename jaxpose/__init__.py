@@ -1,4 +1,4 @@
-"""jaxpose: the pose of an arbitrary kinematic skeleton from a single depth image.
+"""jaxpose: the pose of an arbitrary kinematic skeleton from a single depth image or point cloud.
 
 The pure functional core (usable inside your own ``jax.jit``/``jax.vmap``):
 

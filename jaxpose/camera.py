@@ -174,7 +174,7 @@ def off_planes(
 
     Each plane is found by RANSAC: planes through 3 random points, as many as
     find a plane holding ``min_fraction`` of the points with 99% probability
-    (575 for a fifth), scored on at most 2048 of the points; the best is refitted
+    (574 for a fifth), scored on at most 2048 of the points; the best is refitted
     by least squares to its inliers.  A point is on a plane within ``tol =
     tolerance + noise * z**2`` metres (the depth noise grows with the square of
     depth, like the background tolerance of :func:`foreground_mask`).  A plane is

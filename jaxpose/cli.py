@@ -35,7 +35,8 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="jaxpose",
-        description="Pose of an arbitrary kinematic skeleton from a single depth image (evolutionary search in JAX).",
+        description="Pose of an arbitrary kinematic skeleton from a single depth image or point cloud "
+                    "(evolutionary search in JAX).",
     )
     parser.add_argument("--version", action="version", version=f"jaxpose {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

@@ -66,6 +66,7 @@ def _make_clouds(d: Path) -> None:
     np.save(d / "mm.npy", np.tile(np.float32([0, 0, 1500]), (100, 1)) + pts * [1, 1, 0])
     np.save(d / "tiny.npy", pts[:20])
     np.save(d / "same.npy", np.ones((100, 3), np.float32))
+    np.save(d / "gl.npy", np.tile(np.float32([0, 0, -1.5]), (100, 1)) + pts * [1, 1, 0])
     np.save(d / "int_cloud.npy", (pts * 1000).astype(np.int32))
     (d / "empty.pcd").write_bytes(b"")
     (d / "notes.ply").write_text("not a cloud\n")

@@ -37,8 +37,8 @@ def register(sub) -> None:
                    help="robot files (.urdf, MJCF): also search every link length within +-30%% (default: the model's)")
     p.add_argument("--background", help="depth images: background depth image to subtract (same size)")
     p.add_argument("--remove-planes", type=int, default=0, metavar="N",
-                   help="drop the points of the N largest planes (a floor, a wall) before fitting; for an image "
-                        "or cloud without a background image (default 0)")
+                   help="drop the points of up to N largest planes (a floor, a wall) before fitting; for an "
+                        "image or cloud without a background image (default 0)")
     p.add_argument("--max-points", type=int, default=1024, help="points sampled from the image or cloud (default 1024)")
     p.add_argument("--algorithm", default="ga", help="ga (default), hc, cma_es or another evosax strategy")
     p.add_argument("--population", type=int, default=FitConfig.population)

@@ -12,7 +12,8 @@ def register(sub) -> None:
         "render",
         help="render a synthetic Kinect-like depth image of a posed skeleton, with its ground truth",
         description="Render a skeleton in a random, rest or given pose seen from a camera on an orbit around it. "
-        "Writes a 16-bit PNG in millimetres and optionally a ground-truth JSON and the background-only image.",
+        "Writes a 16-bit PNG in millimetres and optionally a ground-truth JSON, the background-only image and "
+        "the image as a point cloud (--cloud).",
     )
     p.add_argument("--skeleton", required=True, metavar="FILE",
                    help="skeleton file or shipped name (spider, humanoid, ...)")
