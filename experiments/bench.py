@@ -1151,8 +1151,8 @@ def main(argv=None) -> int:
             sys.path.insert(0, HERE)
             import bench_plot
         path = bench_plot.plot_scaling(results, args.png)
-        if path:
-            results["plot"] = path
+        if path:  # relative to the JSON's folder: no path of this machine in the results
+            results["plot"] = os.path.relpath(os.path.abspath(path), os.path.dirname(os.path.abspath(args.json)))
     results["complete"] = True
     results["wall_s"] = time.perf_counter() - t_start
     save()
