@@ -5,8 +5,12 @@ Every metric compares predicted and true capsule end points, link by link
 
 - **PCP** (percentage of correct parts, the paper's "links placed in the correct
   position"): a link is correct when *both* its end points lie within half of its
-  *true* length of the true end points (:func:`pcp`).  ``pcp_10cm`` is the
-  stricter variant with a fixed 10 cm radius.
+  *true* length of the true end points (:func:`pcp`).  Only links of positive true
+  length are scored (:func:`pcp_scored`): a link of length zero (a sphere, or a
+  robot file's frame without geometry, such as a tool frame or one joint of a
+  multi-joint MJCF body) has no extent to measure its placement against; its end
+  points still count in MPJPE and PCK.  ``pcp_10cm`` is the variant with a fixed
+  10 cm radius, over every link.
 - **MPJPE**: the mean distance between predicted and true end points, over the
   ``2 L`` link end points (starts and ends of every link; a joint shared by a
   parent's end and a child's start counts once for each link), in millimetres.
@@ -34,6 +38,7 @@ from .symmetry import (  # noqa: F401  (re-exported: the metrics' symmetry API)
 
 PCK_THRESHOLD = 0.10  # metres
 PCP_FRACTION = 0.5
+MIN_PCP_LENGTH = 1e-6  # metres: shorter true links are not scored by PCP
 
 
 # --------------------------------------------------------------------------- per-link metrics
@@ -52,8 +57,15 @@ def endpoint_errors(pred_start, pred_end, true_start, true_end) -> np.ndarray:
     return np.stack([np.linalg.norm(ps - ts, axis=-1), np.linalg.norm(pe - te, axis=-1)], -1)
 
 
+def pcp_scored(true_start, true_end) -> np.ndarray:
+    """Which links PCP scores ``(L,)``: those of positive true length (see the module docstring)."""
+    ts, te = _arrays(true_start, true_end)
+    return np.linalg.norm(te - ts, axis=-1) > MIN_PCP_LENGTH
+
+
 def pcp(pred_start, pred_end, true_start, true_end, fraction: float = PCP_FRACTION) -> np.ndarray:
-    """Per-link correctness ``(L,)``: both end points within ``fraction`` x the true length."""
+    """Per-link correctness ``(L,)``: both end points within ``fraction`` x the true length
+    (never for a link of zero length; :func:`pcp_scored` says which links count)."""
     err = endpoint_errors(pred_start, pred_end, true_start, true_end)
     ts, te = _arrays(true_start, true_end)
     tol = fraction * np.linalg.norm(te - ts, axis=-1)
@@ -81,18 +93,21 @@ def _pair_costs(pred_start, pred_end, true_start, true_end) -> dict[str, np.ndar
     ds = np.linalg.norm(ts[:, None] - ps[None], axis=-1)
     de = np.linalg.norm(te[:, None] - pe[None], axis=-1)
     tl = np.linalg.norm(te - ts, axis=-1)[:, None]
+    scored = pcp_scored(ts, te)[:, None]
     return {
-        "pcp": -((ds <= PCP_FRACTION * tl) & (de <= PCP_FRACTION * tl)).astype(float),
+        "pcp": -((ds <= PCP_FRACTION * tl) & (de <= PCP_FRACTION * tl) & scored).astype(float),
         "pcp_10cm": -((ds <= PCK_THRESHOLD) & (de <= PCK_THRESHOLD)).astype(float),
         "mpjpe_mm": ds + de,
         "pck_10cm": -((ds <= PCK_THRESHOLD).astype(float) + (de <= PCK_THRESHOLD)),
     }
 
 
-def scores(pred_start, pred_end, true_start, true_end) -> dict[str, float]:
-    """All four metrics for links given in matching order."""
+def scores(pred_start, pred_end, true_start, true_end) -> dict[str, float | None]:
+    """All four metrics for links given in matching order (``pcp`` is ``None`` when no link has a length)."""
+    scored = pcp_scored(true_start, true_end)
+    correct = pcp(pred_start, pred_end, true_start, true_end)
     return {
-        "pcp": float(pcp(pred_start, pred_end, true_start, true_end).mean()),
+        "pcp": float(correct[scored].mean()) if scored.any() else None,
         "pcp_10cm": float(pcp_abs(pred_start, pred_end, true_start, true_end).mean()),
         "mpjpe_mm": mpjpe(pred_start, pred_end, true_start, true_end),
         "pck_10cm": pck(pred_start, pred_end, true_start, true_end),
@@ -149,10 +164,12 @@ def evaluate(
     """Strict and symmetry-aware scores of a predicted pose against the truth.
 
     Links are in the same order in all arrays (the skeleton's order when ``skel``
-    is given).  Returns ``{"num_links", "symmetries", "strict": {...},
+    is given).  Returns ``{"num_links", "pcp_links", "symmetries", "strict": {...},
     "symmetric": {...}, "per_link": {...}, "matching": {...}}`` where each score
-    block holds ``pcp``, ``pcp_10cm``, ``pck_10cm`` (fractions) and ``mpjpe_mm``.
-    Without a skeleton the symmetric block equals the strict one.
+    block holds ``pcp``, ``pcp_10cm``, ``pck_10cm`` (fractions) and ``mpjpe_mm``;
+    ``pcp_links`` is the number of links PCP scores (positive true length), and a
+    link it does not score has ``"correct": None``.  Without a skeleton the
+    symmetric block equals the strict one.
     """
     ps, pe, ts, te = _arrays(pred_start, pred_end, true_start, true_end)
     L = len(ts)
@@ -168,17 +185,20 @@ def evaluate(
         for metric, C in costs.items():
             perm = best_matching(skel, C)
             s = scores(ps[perm], pe[perm], ts, te)[metric]
+            if s is None:  # PCP with no link of positive length
+                continue
             # the identity is in the group, so the best is never worse than the strict value
             sym[metric] = min(s, strict[metric]) if metric == "mpjpe_mm" else max(s, strict[metric])
             if metric == "mpjpe_mm":
                 matching = perm
     err = endpoint_errors(ps, pe, ts, te)
     per_link = {
-        n: {"correct": bool(c), "start_error_mm": float(1000 * e[0]), "end_error_mm": float(1000 * e[1])}
-        for n, c, e in zip(names, pcp(ps, pe, ts, te), err)
+        n: {"correct": bool(c) if k else None, "start_error_mm": float(1000 * e[0]), "end_error_mm": float(1000 * e[1])}
+        for n, c, k, e in zip(names, pcp(ps, pe, ts, te), pcp_scored(ts, te), err)
     }
     return {
         "num_links": L,
+        "pcp_links": int(pcp_scored(ts, te).sum()),
         "symmetries": automorphism_group_order(skel) if skel is not None else 1,
         "strict": strict,
         "symmetric": sym,

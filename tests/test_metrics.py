@@ -40,6 +40,24 @@ def test_pcp_uses_the_true_length_and_both_ends():
     assert not M.pcp(ts, te + [0, 0.1001, 0], ts, te)[0]
 
 
+def test_pcp_skips_links_of_zero_length():
+    """A sphere or a frame without geometry has no length to judge its placement by: PCP leaves it out,
+    MPJPE and PCK keep its points."""
+    ts = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 0]], float)
+    te = np.array([[1, 0, 0], [1, 0, 0], [1, 0.2, 0]], float)  # lengths 1, 0 and 0.2
+    ps = ts + np.array([[0.1, 0, 0], [0.003, 0, 0], [0.3, 0, 0]])
+    pe = te.copy()
+    np.testing.assert_array_equal(M.pcp_scored(ts, te), [True, False, True])
+    s = M.scores(ps, pe, ts, te)
+    assert s["pcp"] == 0.5  # link 0 right, link 2 wrong (0.3 > 0.1); link 1 (3 mm off) not scored
+    assert s["pcp_10cm"] == pytest.approx(2 / 3) and s["pck_10cm"] == pytest.approx(5 / 6)
+    assert s["mpjpe_mm"] == pytest.approx(1000 * (0.1 + 0.003 + 0.3) / 6)
+    m = M.evaluate(ps, pe, ts, te, names=["a", "b", "c"])
+    assert m["pcp_links"] == 2 and [m["per_link"][n]["correct"] for n in "abc"] == [True, None, False]
+    none = M.scores(ps[1:2], pe[1:2], ts[1:2], te[1:2])  # nothing to score
+    assert none["pcp"] is None and none["pck_10cm"] == 1.0
+
+
 # --------------------------------------------------------------------------- symmetries
 
 

@@ -75,7 +75,9 @@ def run(args) -> int:
         print(json.dumps(m, indent=2))
         return 0
     s, b = m["strict"], m["symmetric"]
-    print(f"{m['skeleton'] or 'skeleton'}: {m['num_links']} links, {m['symmetries']} symmetries")
+    unscored = m["num_links"] - m["pcp_links"]
+    print(f"{m['skeleton'] or 'skeleton'}: {m['num_links']} links, {m['symmetries']} symmetries"
+          + (f" ({unscored} of length zero, not scored by PCP)" if unscored else ""))
     print(f"  {'':38} {'strict':>8} {'symmetric':>10}")
     rows = [
         ("links correct (PCP, half true length)", "pcp", True),
@@ -84,12 +86,12 @@ def run(args) -> int:
         ("mean end point error (MPJPE, mm)", "mpjpe_mm", False),
     ]
     for label, key, pct in rows:
-        fmt = (lambda v: f"{100 * v:7.1f}%") if pct else (lambda v: f"{v:8.1f}")
+        fmt = (lambda v: f"{'-':>8}" if v is None else f"{100 * v:7.1f}%") if pct else (lambda v: f"{v:8.1f}")
         print(f"  {label:38} {fmt(s[key])} {fmt(b[key]):>10}")
     swapped = {t: p for t, p in m["matching"].items() if t != p}
     if swapped:
         print("  best matching swaps: " + ", ".join(f"{t}<-{p}" for t, p in swapped.items()))
-    wrong = [n for n, r in m["per_link"].items() if not r["correct"]]
+    wrong = [n for n, r in m["per_link"].items() if r["correct"] is False]
     if wrong:
         print("  misplaced (strict PCP): " + ", ".join(wrong))
     return 0
