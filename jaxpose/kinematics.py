@@ -100,7 +100,12 @@ def forward_kinematics(skel: Skeleton, pose: Pose) -> Links:
     par = np.maximum(parents, 0)
     parent_tip = skel.seg_start[par] + pose.lengths[par][:, None] * skel.seg_dir[par]
     parent_tip = jnp.where((parents >= 0)[:, None], parent_tip, 0.0)
-    anchor = scale * (skel.offset + skel.attach[:, None] * parent_tip)  # (L, 3) in parent frame
+    anchor = skel.offset + skel.attach[:, None] * parent_tip
+    slide = np.array([jt == "slide" for jt in skel.joint_types])
+    if slide.any():  # a slide moves its link's anchor along the axis (rest frame) by its value
+        moved = _matvec(skel.rest_rotation, skel.axis) * pose.angles[:, :1]
+        anchor = anchor + jnp.where(slide[:, None], moved, 0.0)
+    anchor = scale * anchor  # (L, 3) in parent frame
 
     R_w, t_w = _compose(skel.levels, parents, R_root, pose.root_t, R_local, anchor)
 

@@ -19,7 +19,10 @@ offset and radius.
 
 Joints.  ``ball``: three angles, ``R_joint = Rz(q2) @ Ry(q1) @ Rx(q0)`` (roll,
 pitch, yaw about the rest frame's axes, the URDF ``rpy`` convention).  ``hinge``:
-one angle about ``axis``.  ``fixed``: none.
+one angle about ``axis``.  ``slide`` (prismatic): one displacement ``q`` in metres
+along ``axis`` (rest frame), ``R_joint = I`` and the anchor moves by
+``R_rest_i @ axis_i * q`` (in the parent frame, times the global scale).
+``fixed``: none.
 
 Parameters (:class:`Pose`) are a pytree in physical units.  The search works on a
 flat genome ``g`` in ``[0, 1]^D`` (see :class:`GenomeLayout`).
@@ -37,7 +40,7 @@ import numpy as np
 
 from .errors import SkeletonError
 
-JOINT_DOF = {"ball": 3, "hinge": 1, "fixed": 0}
+JOINT_DOF = {"ball": 3, "hinge": 1, "slide": 1, "fixed": 0}
 
 # Search range of the root orientation (roll, pitch, yaw), radians.
 ROOT_ANGLE_LIMITS = np.array([[-np.pi, np.pi], [-np.pi / 2, np.pi / 2], [-np.pi, np.pi]])
@@ -80,8 +83,8 @@ class Skeleton:
     offset: jax.Array  # (L, 3) anchor offset in the parent frame, metres at scale 1
     attach: jax.Array  # (L,) fraction along the parent's segment added to the anchor
     rest_rotation: jax.Array  # (L, 3, 3) rest rotation R_rest
-    axis: jax.Array  # (L, 3) hinge axis (unit), unused for other joints
-    angle_lo: jax.Array  # (L, 3) lower joint limits, radians (unused DOFs 0)
+    axis: jax.Array  # (L, 3) hinge / slide axis (unit), unused for other joints
+    angle_lo: jax.Array  # (L, 3) lower joint limits, radians (a slide: metres; unused DOFs 0)
     angle_hi: jax.Array  # (L, 3) upper joint limits
     seg_start: jax.Array  # (L, 3) capsule start in the link frame
     seg_dir: jax.Array  # (L, 3) unit capsule direction in the link frame
@@ -160,7 +163,7 @@ class Pose(NamedTuple):
     root_t: jax.Array  # (..., 3) root translation, metres
     root_rpy: jax.Array  # (..., 3) root orientation (roll, pitch, yaw), radians
     scale: jax.Array  # (...,) global scale
-    angles: jax.Array  # (..., L, 3) joint angles, radians (unused DOFs are 0)
+    angles: jax.Array  # (..., L, 3) joint angles, radians (a slide: metres; unused DOFs are 0)
     lengths: jax.Array  # (..., L) link lengths at scale 1, metres
 
 
@@ -184,7 +187,7 @@ class GenomeLayout:
     """Where each searched parameter sits in the flat genome.
 
     The genome is ``[root_t (3), root_rpy (3), scale (1), then for every link in
-    topological order: its joint angles (ball 3, hinge 1, fixed 0) followed by its
+    topological order: its joint values (ball 3, hinge 1, slide 1, fixed 0) followed by its
     length if the link's length range is not a single value]``.  Every gene lies in
     ``[0, 1]`` and maps linearly onto its parameter's range.  ``target`` gives each
     gene's index in the flat parameter vector ``[root_t, root_rpy, scale,
@@ -306,7 +309,7 @@ class LinkSpec:
     rest: tuple = (0.0, 0.0, 0.0)  # rest rotation rpy, degrees
     rest_matrix: np.ndarray | None = None  # overrides ``rest`` (importers)
     axis: tuple = (0.0, 0.0, 1.0)
-    limits: list | None = None  # degrees: ball [[lo,hi]]*3, hinge [[lo,hi]]
+    limits: list | None = None  # degrees: ball [[lo,hi]]*3, hinge [[lo,hi]]; slide: metres [[lo,hi]]
     length: float = 0.1
     length_range: tuple | None = None  # default: fixed at ``length``
     radius: float = 0.0
@@ -336,7 +339,6 @@ def build_skeleton(
 
     if not links:
         fail("the skeleton has no links")
-    names = [l.name for l in links]
     seen = set()
     for l in links:
         if not isinstance(l.name, str) or not l.name:
@@ -402,28 +404,32 @@ def build_skeleton(
         else:
             rest[i] = rpy_matrix(np.deg2rad(_vec3(l.rest, "rest", l.name, fail)))
         ax = _vec3(l.axis, "axis", l.name, fail)
-        if l.joint == "hinge":
+        if l.joint in ("hinge", "slide"):
             n = np.linalg.norm(ax)
             if not n > 0:
-                fail("hinge axis must be a non-zero vector", l.name)
+                fail(f"{l.joint} axis must be a non-zero vector", l.name)
             ax = ax / n
         axis[i] = ax
         dof = JOINT_DOF[l.joint]
+        unit = "metres" if l.joint == "slide" else "degrees"
         lim = l.limits
         if lim is None:
+            if l.joint == "slide":
+                fail("a slide joint needs 'limits' (one [lo, hi] pair, metres)", l.name)
             lim = [[-180.0, 180.0]] * dof
         try:
             lim = np.asarray(lim, float).reshape(-1, 2) if dof else np.zeros((0, 2))
         except (TypeError, ValueError):
-            fail(f"'limits' must be {dof} pair(s) of numbers (degrees)", l.name)
+            fail(f"'limits' must be {dof} pair(s) of numbers ({unit})", l.name)
         if lim.shape[0] != dof:
             fail(f"'limits' must have {dof} [lo, hi] pair(s) for a {l.joint} joint, got {lim.shape[0]}", l.name)
         if not np.all(np.isfinite(lim)):
             fail("joint limits must be finite numbers", l.name)
         if np.any(lim[:, 0] > lim[:, 1]):
             fail(f"inverted joint limits {lim.tolist()} (lower > upper)", l.name)
-        alo[i, :dof] = np.deg2rad(lim[:, 0])
-        ahi[i, :dof] = np.deg2rad(lim[:, 1])
+        to_rad = (lambda v: v) if l.joint == "slide" else np.deg2rad
+        alo[i, :dof] = to_rad(lim[:, 0])
+        ahi[i, :dof] = to_rad(lim[:, 1])
         try:
             length[i] = float(l.length)
         except (TypeError, ValueError):

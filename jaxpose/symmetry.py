@@ -30,7 +30,7 @@ def link_attributes(skel: Skeleton, decimals: int = 5) -> list[tuple]:
     for i, jt in enumerate(skel.joint_types):
         dof = JOINT_DOF[jt]
         lo, hi = r(np.asarray(skel.angle_lo)[i, :dof]), r(np.asarray(skel.angle_hi)[i, :dof])
-        if jt == "hinge":  # a hinge about -axis with negated limits reaches the same poses: mirrored legs match
+        if jt in ("hinge", "slide"):  # about / along -axis with negated limits: the same poses; mirrored legs match
             lo, hi = min((lo, hi), (r(-np.asarray(hi)), r(-np.asarray(lo))))
         out.append((
             jt,

@@ -60,7 +60,7 @@ def fk_oracle(links, pose):
     ``joint``, ``offset``, ``attach``, ``rest`` (degrees), ``axis``, ``length``,
     ``radius``) plus the optional importer keys ``seg_start``, ``seg_dir``, in any
     order.  ``pose``: dict with ``root_t``, ``root_rpy``, ``scale``, ``angles``
-    (name -> 3 radians) and ``lengths`` (name -> metres at scale 1; default: the
+    (name -> 3 radians; a slide's first value in metres) and ``lengths`` (name -> metres at scale 1; default: the
     description's ``length``).
 
     Returns ``{name: dict(R, origin, start, end, radius)}`` in float64.
@@ -102,10 +102,13 @@ def fk_oracle(links, pose):
             R_j = rot_z(q[2]) @ rot_y(q[1]) @ rot_x(q[0])
         elif joint == "hinge":
             R_j = rot_axis(l.get("axis", (0.0, 0.0, 1.0)), q[0])
-        elif joint == "fixed":
+        elif joint in ("fixed", "slide"):
             R_j = np.eye(3)
         else:
             raise ValueError(joint)
+        if joint == "slide":  # the joint frame moves along its axis, given in the rest frame
+            axis = np.asarray(l.get("axis", (0.0, 0.0, 1.0)), float)
+            anchor = anchor + R_rest @ (q[0] * axis / np.linalg.norm(axis))
         R = R_p @ R_rest @ R_j
         origin = t_p + R_p @ (scale * anchor)
         s0, s1 = seg(l, length_of(name))

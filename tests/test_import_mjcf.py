@@ -19,7 +19,7 @@ from jaxpose.io.mjcf import compile_mjcf, load_mjcf, pose_from_qpos, quat_to_mat
 
 FIXTURES = os.path.join(os.path.dirname(__file__), "fixtures")
 FK_TOL = 1e-5  # metres (positions) and matrix entries (rotations); jaxpose runs in float32
-MODELS = ["ant", "humanoid_lite", "gadget"]
+MODELS = ["ant", "humanoid_lite", "gadget", "planar", "reacher_like"]
 
 
 def fixture(name):
@@ -54,6 +54,8 @@ def random_qpos(m, rng):
         elif t == mujoco.mjtJoint.mjJNT_HINGE:
             lo, hi = m.jnt_range[j] if m.jnt_limited[j] else (-np.pi, np.pi)
             q[a] = rng.uniform(lo, hi)
+        elif t == mujoco.mjtJoint.mjJNT_SLIDE:
+            q[a] = rng.uniform(*m.jnt_range[j]) if m.jnt_limited[j] else rng.uniform(-1, 1)
     return q
 
 
@@ -115,6 +117,36 @@ def test_gadget_ball_ref_and_world_attached_base():
     np.testing.assert_allclose([skel.angle_lo[spin, 0], skel.angle_hi[spin, 0]], [-np.pi, np.pi], atol=1e-6)
     pose = pose_from_qpos(skel, m, m.qpos0)  # qpos0 is the rest pose
     np.testing.assert_allclose(pose.angles, 0, atol=1e-7)
+
+
+def test_planar_root_joints_are_the_root_pose_and_slides_are_searched():
+    m, skel = model_and_skeleton("planar")
+    torso = skel.index("torso")  # rootx, rootz, rooty: the root pose's own degrees of freedom
+    assert skel.parents[torso] == -1 and skel.joint_types[torso] == "fixed"
+    np.testing.assert_allclose(skel.offset[torso], 0, atol=0)
+    np.testing.assert_allclose(skel.rest_rotation[torso], np.eye(3), atol=0)
+    assert not any(n.startswith("torso/") for n in skel.link_names)
+    tele = skel.index("shin/telescope")  # anchored off the body origin: a chain link, the body fixed below it
+    assert skel.joint_types[tele] == "slide" and skel.joint_types[skel.index("shin")] == "fixed"
+    np.testing.assert_allclose([skel.angle_lo[tele, 0], skel.angle_hi[tele, 0]], [-0.07, 0.13], atol=1e-6)
+    assert skel.joint_types[skel.index("foot/ankle_slide")] == "slide"
+    assert skel.joint_types[skel.index("foot")] == "hinge"
+    rail = skel.index("tail")  # unlimited: within the model's extent
+    np.testing.assert_allclose([skel.angle_lo[rail, 0], skel.angle_hi[rail, 0]],
+                               [-m.stat.extent, m.stat.extent], rtol=1e-6)
+    # searched: the root (7), hip, telescope, ankle slide and hinge, rail
+    assert skel.num_dof == 7 + 5
+    pose = pose_from_qpos(skel, m, m.qpos0)  # qpos0: the rest pose, the torso where the file puts it
+    np.testing.assert_allclose(pose.angles, 0, atol=1e-7)
+    np.testing.assert_allclose(pose.root_t, m.body_pos[1], atol=1e-6)
+
+
+def test_two_top_level_bodies_keep_their_joints():
+    m, skel = model_and_skeleton("reacher_like")
+    assert skel.joint_types[skel.index("arm")] == "hinge"
+    tx = skel.index("target/target_x")
+    assert skel.joint_types[tx] == "slide" and skel.joint_types[skel.index("target")] == "slide"
+    np.testing.assert_allclose([skel.angle_lo[tx, 0], skel.angle_hi[tx, 0]], [-0.37, 0.17], atol=1e-6)
 
 
 def test_search_lengths_option():
@@ -249,8 +281,6 @@ BODY = '<body name="{n}"{extra}><geom size=".1"/>{inner}</body>'
         ('<mujoco><worldbody><body name="a"><joint type="bogus"/><geom size=".1"/></body></worldbody></mujoco>',
          ["MuJoCo cannot compile", "bogus"]),
         ('<mujoco><worldbody><geom type="plane" size="1 1 1"/></worldbody></mujoco>', ["no bodies"]),
-        ('<mujoco><worldbody><body name="a"><joint name="s" type="slide"/><geom size=".1"/></body>'
-         "</worldbody></mujoco>", ["slide", "'s'", "'a'"]),
         ('<mujoco><worldbody><body name="a"><freejoint/><geom size=".1"/></body>'
          '<body name="b"><freejoint/><geom size=".1"/></body></worldbody></mujoco>', ["free joints", "'a'", "'b'"]),
         ('<mujoco><worldbody><body name="a"><freejoint/><geom size=".1"/></body>'

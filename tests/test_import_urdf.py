@@ -44,7 +44,8 @@ def _origin_T(el):
 
 
 def oracle_fk(path, q):
-    """World 4x4 transform of every link for joint values ``q`` (dict joint name -> angle); root at identity."""
+    """World 4x4 transform of every link for joint values ``q`` (dict joint name -> angle or, for a
+    prismatic joint, displacement); root at identity."""
     root = ET.parse(path).getroot()
     joints = {j.find("child").get("link"): j for j in root.findall("joint")}
     out = {}
@@ -60,7 +61,10 @@ def oracle_fk(path, q):
                     a = j.find("axis")
                     axis = list(map(float, a.get("xyz").split())) if a is not None else [1, 0, 0]
                     J = np.eye(4)
-                    J[:3, :3] = _rot(axis, q[j.get("name")])
+                    if j.get("type") == "prismatic":  # a translation along the axis, metres
+                        J[:3, 3] = q[j.get("name")] * np.asarray(axis) / np.linalg.norm(axis)
+                    else:
+                        J[:3, :3] = _rot(axis, q[j.get("name")])
                     M = M @ J
                 out[link] = M
         return out[link]
@@ -71,7 +75,7 @@ def oracle_fk(path, q):
 
 
 def hinge_joint_names(path):
-    """Joint name of every hinge link, by link name."""
+    """Joint name of every moving (hinge or slide) link, by link name."""
     root = ET.parse(path).getroot()
     return {j.find("child").get("link"): j.get("name") for j in root.findall("joint") if j.get("type") != "fixed"}
 
@@ -148,7 +152,7 @@ def test_search_lengths_option():
 # --------------------------------------------------------------------------- kinematics
 
 
-@pytest.mark.parametrize("name", ["chain", "arm7", "mesh_link"])
+@pytest.mark.parametrize("name", ["chain", "arm7", "mesh_link", "gripper"])
 def test_forward_kinematics_matches_numpy_oracle(name):
     path = fixture(name)
     skel = load_urdf(path)
@@ -164,9 +168,10 @@ def test_forward_kinematics_matches_numpy_oracle(name):
             np.testing.assert_allclose(links.R_world_link[k, i], T[n][:3, :3], atol=FK_TOL, err_msg=n)
 
 
-def test_arm_forward_kinematics_matches_mujoco():
+@pytest.mark.parametrize("name", ["arm7", "gripper"])
+def test_forward_kinematics_matches_mujoco(name):
     mujoco = pytest.importorskip("mujoco")
-    path = fixture("arm7")
+    path = fixture(name)
     m = mujoco.MjModel.from_xml_path(path)  # MuJoCo's own URDF compiler (the file keeps every link)
     d = mujoco.MjData(m)
     skel = load_urdf(path)
@@ -206,8 +211,8 @@ BAD = [
     (robot('<link name="a"/><link name="a"/>'), ["duplicate link", "'a'"]),
     (robot(LINKS + joint("j1", "revolute", "a", "b", LIMIT) + joint("j2", "slider", "b", "c")),
      ["joint 'j2'", "unknown joint type 'slider'"]),
-    (robot(LINKS + joint("j1", "prismatic", "a", "b", LIMIT) + joint("j2", "fixed", "b", "c")),
-     ["joint 'j1'", "prismatic"]),
+    (robot(LINKS + joint("j1", "prismatic", "a", "b") + joint("j2", "fixed", "b", "c")),
+     ["joint 'j1'", "a prismatic joint needs a <limit"]),
     (robot(LINKS + joint("j1", "floating", "a", "b") + joint("j2", "fixed", "b", "c")), ["joint 'j1'", "floating"]),
     (robot(LINKS + joint("j1", "fixed", "a", "b") + joint("j2", "fixed", "b", "ghost")),
      ["joint 'j2'", "missing child link 'ghost'"]),
@@ -239,6 +244,8 @@ def test_bad_files_raise_one_clear_error(tmp_path, text, words):
     assert msg.startswith(str(path)) and "\n" not in msg
     for w in words:
         assert w in msg, msg
+        if w.startswith("joint '"):
+            assert msg.count(w) == 1, msg  # the joint is named once, not again by a nested message
 
 
 def test_missing_file():
@@ -302,7 +309,7 @@ def test_mesh_files_are_read_and_enclosed(tmp_path, kind):
         name = "part.stl"
     skel = load_urdf(_mesh_urdf(tmp_path, name))
     # the vertices in the link frame: scale, then the visual origin (URDF rpy = Rz Ry Rx)
-    roll, pitch, yaw = 0.0, 0.3, 0.5
+    pitch, yaw = 0.3, 0.5  # roll 0
     cz, sz, cy, sy = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
     R = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]]) @ np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
     pts = np.array([0.02, 0, 0.01]) + (v * [0.5, 2.0, 1.0]) @ R.T
@@ -345,3 +352,18 @@ def test_load_skeleton_search_lengths_for_robot_files_only(tmp_path):
     assert not any(n.endswith(".length") for n in genome_layout(load_skeleton(fixture("arm7"))).names)
     with pytest.raises(SkeletonError, match="searching lengths is an option for robot files"):
         load_skeleton("spider", search_lengths=True)
+
+
+def test_prismatic_and_spherical_joints(tmp_path):
+    skel = load_urdf(fixture("gripper"))
+    assert skel.joint_types == ("fixed", "hinge", "slide", "hinge", "slide", "slide")
+    i = skel.index("column")
+    np.testing.assert_allclose([skel.angle_lo[i, 0], skel.angle_hi[i, 0]], [-0.05, 0.3], atol=1e-7)  # metres
+    np.testing.assert_allclose(skel.axis[skel.index("finger_right")], [0, -1, 0], atol=1e-7)
+    # the fingers slide in opposite directions over the same range: interchangeable for the metrics
+    assert skel.orbit[skel.index("finger_left")] == skel.orbit[skel.index("finger_right")]
+    path = tmp_path / "ball.urdf"
+    path.write_text(robot(LINKS + joint("j1", "spherical", "a", "b") + joint("j2", "fixed", "b", "c")))
+    ball = load_urdf(str(path))
+    assert ball.joint_types[ball.index("b")] == "ball"
+    np.testing.assert_allclose(ball.angle_hi[ball.index("b")], [np.pi] * 3, atol=1e-6)

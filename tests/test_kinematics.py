@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxpose.errors import SkeletonError
 from jaxpose.io.skeleton_file import load_skeleton, shipped_skeletons
 from jaxpose.kinematics import forward_kinematics
 from jaxpose.skeleton import LinkSpec, Pose, axis_angle_matrix, build_skeleton, rest_pose, rpy_matrix
@@ -32,7 +33,7 @@ def random_pose(skel, rng, *, angle_range=np.pi, scale=None, root=True):
         root_t=jnp.asarray(rng.uniform(-1, 1, 3) + [0, 0, 2.0] if root else np.zeros(3), jnp.float32),
         root_rpy=jnp.asarray(rng.uniform(-np.pi, np.pi, 3) if root else np.zeros(3), jnp.float32),
         scale=jnp.asarray(rng.uniform(0.5, 2.0) if scale is None else scale, jnp.float32),
-        # every DOF random, unused ones included: hinge/fixed joints must ignore them
+        # every DOF random, unused ones included: hinge/slide/fixed joints must ignore them
         angles=jnp.asarray(rng.uniform(-angle_range, angle_range, (L, 3)), jnp.float32),
         lengths=jnp.asarray(rng.uniform(0.05, 0.5, L), jnp.float32),
     )
@@ -77,6 +78,30 @@ def test_single_link_by_hand():
     np.testing.assert_allclose(out.radius[0], 0.04, atol=1e-7)
 
 
+def test_slide_joint_by_hand():
+    """A slide moves its link (and everything below it) along its axis in the rest frame, times the scale."""
+    skel = build_skeleton("slider", [
+        LinkSpec("base", joint="fixed", length=0.2),
+        LinkSpec("carriage", parent="base", joint="slide", rest=(0, 0, 90), axis=(1, 0, 0), limits=[[-0.1, 0.3]],
+                 length=0.1),
+        LinkSpec("tip", parent="carriage", joint="fixed", length=0.05),
+    ])
+    assert skel.num_dof == 7 + 1 and skel.layout.names[-1] == "carriage.q0"
+    np.testing.assert_allclose([skel.angle_lo[1, 0], skel.angle_hi[1, 0]], [-0.1, 0.3], atol=1e-7)  # metres
+    pose = rest_pose(skel, scale=2.0)
+    pose = pose._replace(angles=pose.angles.at[1, 0].set(0.25))
+    out = fk_jit(skel, pose)
+    # base tip at x = 0.4 (scaled); the carriage's rest yaw 90 turns its axis +x into +y: 2 * 0.25 along y
+    np.testing.assert_allclose(out.origin[1], [0.4, 0.5, 0.0], atol=1e-6)
+    np.testing.assert_allclose(out.end[1], [0.4, 0.7, 0.0], atol=1e-6)  # the link points along +y, 2 * 0.1
+    np.testing.assert_allclose(out.origin[2], [0.4, 0.7, 0.0], atol=1e-6)  # the child moves with it
+    np.testing.assert_allclose(np.asarray(out.R_world_link[1]) @ [1, 0, 0], [0, 1, 0], atol=1e-6)  # no rotation from q
+    with pytest.raises(SkeletonError, match="slide joint needs 'limits'"):
+        build_skeleton("bad", [LinkSpec("a", joint="slide", axis=(1, 0, 0))])
+    with pytest.raises(SkeletonError, match="slide axis must be a non-zero vector"):
+        build_skeleton("bad", [LinkSpec("a", joint="slide", axis=(0, 0, 0), limits=[[0, 1]])])
+
+
 # --------------------------------------------------------------------------- against the oracle
 
 
@@ -97,7 +122,9 @@ def random_tree(rng, L, p_root=0.2, chain_bias=0.0):
     rest rotations and capsule placement; returned in shuffled file order."""
     desc = []
     for i in range(L):
-        d = dict(name=f"n{i}", joint=str(rng.choice(["ball", "hinge", "fixed"])))
+        d = dict(name=f"n{i}", joint=str(rng.choice(["ball", "hinge", "slide", "fixed"])))
+        if d["joint"] == "slide":
+            d["limits"] = [[-0.5, 0.5]]
         if i > 0 and rng.random() > p_root:
             d["parent"] = f"n{i - 1}" if rng.random() < chain_bias else f"n{rng.integers(0, i)}"
         d["offset"] = tuple(rng.normal(0, 0.1, 3))

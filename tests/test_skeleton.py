@@ -14,7 +14,6 @@ import pytest
 from jaxpose.errors import SkeletonError
 from jaxpose.io.skeleton_file import load_skeleton, skeleton_from_dict
 from jaxpose.skeleton import (
-    ROOT_ANGLE_LIMITS,
     LinkSpec,
     Pose,
     build_skeleton,

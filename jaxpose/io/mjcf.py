@@ -19,15 +19,22 @@ no joint                    ``fixed`` (the body is welded to its parent)
                             limits ``range - ref``, unlimited: [-180, 180] degrees
 ``ball``                    ``ball`` (roll, pitch, yaw of the joint quaternion);
                             a limited ball of range ``r``: [-r, r] for each angle
+``slide``                   ``slide`` along the joint axis; displacement ``qpos - qpos0``;
+                            limits ``range - ref`` (metres), unlimited: +-``stat.extent``
 ``free``                    the searched root pose (top-level body only, at most one)
-``slide``                   rejected (jaxpose skeletons only rotate)
+joints of the only          the searched root pose: the camera does not know the world, so
+top-level body              a planar root (``rootx``/``rootz`` slides and a hinge, as in
+                            half_cheetah or walker2d) adds nothing to the root's six DOF
 several joints on a body    a chain of zero-length, zero-radius links ``body/joint`` with one
                             joint each; the body's own link comes last and carries the geometry
 ==========================  ================================================================
 
 A joint rotates about its anchor (``<joint pos>``).  The link carrying it has its
 origin at the anchor; when the last joint of a body is anchored away from the body
-origin, the body link itself is a ``fixed`` link back at the body origin.  With
+origin, the body link itself is a ``fixed`` link back at the body origin.
+When the world holds one body and that body has joints (a free joint, or
+slides and hinges), the body's frame is the searched root frame and its joints
+are not searched separately: they would only repeat the root's degrees of freedom.  With
 ``search_lengths`` the ranges are as in :mod:`jaxpose.io.urdf`.  Top-level bodies
 without a free joint hang from the searched root frame (the world of the file);
 a free body may not share the world with other top-level bodies.  Equality
@@ -108,7 +115,7 @@ def load_mjcf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0)) -> 
 def skeleton_from_model(model, *, source: str = "<mjcf>", search_lengths: bool = False,
                         scale_range=(0.5, 2.0), name: str | None = None) -> Skeleton:
     """Build the skeleton of a compiled ``mujoco.MjModel`` (``source`` names it in errors)."""
-    specs, _ = _plan(model, source, search_lengths)
+    specs, _, _ = _plan(model, source, search_lengths)
     if name is None:
         name = bytes(model.names).split(b"\0", 1)[0].decode() or os.path.splitext(os.path.basename(source))[0]
     return build_skeleton(name, specs, scale_range=scale_range, source=source, require_geometry=False)
@@ -117,22 +124,28 @@ def skeleton_from_model(model, *, source: str = "<mjcf>", search_lengths: bool =
 def pose_from_qpos(skel: Skeleton, model, qpos) -> Pose:
     """The jaxpose :class:`Pose` (scale 1) of MuJoCo joint values ``qpos`` (``(model.nq,)``).
 
-    A free root joint gives ``root_t`` and ``root_rpy``; hinge angles are measured
-    from ``qpos0``; ball quaternions become roll, pitch, yaw.  ``skel`` must come
-    from the same model (:func:`skeleton_from_model` or :func:`load_mjcf`).
+    The root pose is the world pose of the body whose joints became the root (a
+    free joint's position and orientation; see the module docstring), by MuJoCo's
+    own ``mj_kinematics``; hinge angles and slide displacements are measured from
+    ``qpos0``; ball quaternions become roll, pitch, yaw.  ``skel`` must come from the
+    same model (:func:`skeleton_from_model` or :func:`load_mjcf`).
     """
     qpos = np.asarray(qpos, float).reshape(-1)
     if qpos.shape != (model.nq,):
         raise ValueError(f"qpos must have shape ({model.nq},), got {qpos.shape}")
-    _, joint_links = _plan(model, "<mjcf>", False, geometry=False)
+    _, joint_links, root_body = _plan(model, "<mjcf>", False, geometry=False)
     root_t, root_rpy = np.zeros(3), np.zeros(3)
+    if root_body is not None:
+        mujoco = _import_mujoco()
+        data = mujoco.MjData(model)
+        data.qpos[:] = qpos
+        mujoco.mj_kinematics(model, data)
+        root_t = np.array(data.xpos[root_body], float)
+        root_rpy = matrix_to_rpy(np.asarray(data.xmat[root_body], float).reshape(3, 3))
     angles = np.zeros((skel.num_links, 3))
     for link, j in joint_links:
         adr, jt = int(model.jnt_qposadr[j]), int(model.jnt_type[j])
-        if jt == _FREE:
-            root_t = qpos[adr : adr + 3]
-            root_rpy = matrix_to_rpy(quat_to_matrix(qpos[adr + 3 : adr + 7]))
-        elif jt == _HINGE:
+        if jt in (_HINGE, _SLIDE):
             angles[skel.index(link), 0] = qpos[adr] - model.qpos0[adr]
         elif jt == _BALL:
             angles[skel.index(link)] = matrix_to_rpy(quat_to_matrix(qpos[adr : adr + 4]))
@@ -168,7 +181,8 @@ def _names(model, count, kind, default):
 
 
 def _plan(model, source, search_lengths, geometry=True):
-    """LinkSpecs of the compiled model and ``[(link name, joint id)]`` for every joint."""
+    """LinkSpecs of the compiled model, ``[(link name, joint id)]`` for every searched joint, and the
+    body whose joints are the root pose (``None``: the root frame is the world's)."""
 
     def fail(msg):
         raise SkeletonError(f"{source}: {msg}")
@@ -185,9 +199,6 @@ def _plan(model, source, search_lengths, geometry=True):
     free_bodies = []
     for j in range(model.njnt):
         b = int(jnt_body[j])
-        if jtype[j] == _SLIDE:
-            fail(f"joint {joint_names[j]!r} (body {body_names[b]!r}): slide (prismatic) joints are not "
-                 "supported (jaxpose skeletons have rotational joints only)")
         if jtype[j] == _FREE:
             if parent[b] != 0:
                 fail(f"joint {joint_names[j]!r}: a free joint is only supported on a top-level body, "
@@ -204,6 +215,9 @@ def _plan(model, source, search_lengths, geometry=True):
         fail(f"body {body_names[free_bodies[0]]!r} floats freely while body {body_names[other]!r} is attached "
              "to the world; jaxpose moves the whole skeleton with one root pose")
 
+    # the only top-level body's joints (a free joint, or a planar root of slides and a hinge) only repeat
+    # the searched root pose's degrees of freedom: that body's frame is the root frame
+    root_body = top[0] if len(top) == 1 and np.any(jnt_body == top[0]) else None
     shapes = _geometry(model) if geometry else [[] for _ in range(nb)]
     taken = set(body_names[1:])
     specs, joint_links = [], []
@@ -213,8 +227,7 @@ def _plan(model, source, search_lengths, geometry=True):
         pos = np.asarray(model.body_pos[b], float)
         R = quat_to_matrix(model.body_quat[b])
         joints = [j for j in range(model.njnt) if jnt_body[j] == b]
-        if joints and jtype[joints[0]] == _FREE:
-            joint_links.append((bname, joints[0]))
+        if b == root_body:
             pos, R, joints = np.zeros(3), np.eye(3), []  # the body pose is the root pose
         prev = None  # anchor of the previous joint of this body (in the body frame)
         on_body = False
@@ -244,17 +257,22 @@ def _plan(model, source, search_lengths, geometry=True):
                 where = dict(offset=tuple(-prev), rest_matrix=np.eye(3))
             specs.append(LinkSpec(name=bname, parent=parent_link, attach=0.0, joint="fixed", **where,
                                   **_capsule_spec(shapes[b], search_lengths)))
-    return specs, joint_links
+    return specs, joint_links, root_body
 
 
 def _joint_spec(model, j):
     jt = int(model.jnt_type[j])
     limited = bool(model.jnt_limited[j])
     lo, hi = (float(v) for v in model.jnt_range[j])
-    if jt == _HINGE:
+    if jt in (_HINGE, _SLIDE):
         ref = float(model.qpos0[model.jnt_qposadr[j]])
+        axis = tuple(np.asarray(model.jnt_axis[j], float))
+        if jt == _SLIDE:  # metres; an unlimited slide moves within the model's size (MuJoCo's stat.extent)
+            reach = float(model.stat.extent)
+            lim = [lo - ref, hi - ref] if limited else [-reach, reach]
+            return dict(joint="slide", axis=axis, limits=[list(map(float, lim))])
         lim = np.rad2deg([lo - ref, hi - ref]) if limited else [-180.0, 180.0]
-        return dict(joint="hinge", axis=tuple(np.asarray(model.jnt_axis[j], float)), limits=[list(map(float, lim))])
+        return dict(joint="hinge", axis=axis, limits=[list(map(float, lim))])
     r = min(float(np.rad2deg(hi)), 180.0) if limited else 180.0
     return dict(joint="ball", limits=[[-r, r]] * 3)
 

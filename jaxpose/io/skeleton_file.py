@@ -8,13 +8,13 @@ Schema (TOML shown; JSON uses the same keys)::
     [[link]]
     name = "leg0_upper"          # unique
     parent = "..."               # optional; omitted: the link hangs from the root frame
-    joint = "ball"               # ball (3 DOF) | hinge (1 DOF) | fixed (0 DOF)
+    joint = "ball"               # ball (3 DOF) | hinge (1 DOF) | slide (1 DOF) | fixed (0 DOF)
     offset = [0.06, 0.06, 0.0]   # anchor in the parent frame, metres (default 0)
     attach = 1.0                 # fraction of the parent's length added to the anchor
                                  # (default 1 with a parent: its far end; 0 without)
     rest = [0, 0, 45]            # rest rotation roll, pitch, yaw, degrees (default 0)
-    axis = [0, 1, 0]             # hinge axis in the rest frame (hinge only)
-    limits = [[-30, 30], [-60, 60], [-45, 45]]  # degrees; ball: 3 pairs, hinge: 1
+    axis = [0, 1, 0]             # hinge / slide axis in the rest frame (hinge, slide only)
+    limits = [[-30, 30], [-60, 60], [-45, 45]]  # degrees; ball: 3 pairs, hinge: 1; slide: 1, metres
     length = 0.15                # metres, > 0; the link points along its +x axis
     length_range = [0.1, 0.2]    # optional: search the length (default: fixed)
     radius = 0.02                # capsule radius, metres (0: a line segment)

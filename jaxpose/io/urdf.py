@@ -10,8 +10,9 @@ URDF                            jaxpose
 joint ``<origin xyz rpy>``      ``offset = xyz``, ``rest_matrix = Rz(y) Ry(p) Rx(r)``, ``attach = 0``
 ``revolute``                    ``hinge`` about ``<axis xyz>`` (joint frame), ``<limit lower upper>``
 ``continuous``                  ``hinge``, limits [-180, 180] degrees
+``prismatic``                   ``slide`` along ``<axis xyz>``, ``<limit lower upper>`` (metres)
+``spherical`` (PyBullet)        ``ball``, limits [-180, 180] degrees on each angle
 ``fixed``                       ``fixed`` (a zero-DOF link)
-``prismatic``                   rejected (jaxpose skeletons only rotate)
 ``floating``, ``planar``        rejected (the root pose is always searched anyway)
 ``<mimic>``                     ignored: the joint is searched independently
 ==============================  ==========================================================
@@ -240,8 +241,8 @@ def _origin(elem, what, fail):
     o = elem.find("origin") if elem is not None else None
     if o is None:
         return np.zeros(3), np.eye(3)
-    xyz = _numbers(o.get("xyz"), 3, f"{what} <origin xyz>", (0, 0, 0), fail)
-    rpy = _numbers(o.get("rpy"), 3, f"{what} <origin rpy>", (0, 0, 0), fail)
+    xyz = _numbers(o.get("xyz"), 3, f"{what} <origin xyz>".strip(), (0, 0, 0), fail)
+    rpy = _numbers(o.get("rpy"), 3, f"{what} <origin rpy>".strip(), (0, 0, 0), fail)
     return xyz, rpy_matrix(rpy)
 
 
@@ -383,40 +384,41 @@ def _urdf_specs(root, path, search_lengths):
             if e.get("link") not in links:
                 jfail(f"refers to a missing {tag} link {e.get('link')!r}")
             ends[tag] = e.get("link")
-        if jtype == "prismatic":
-            jfail("prismatic joints are not supported (jaxpose skeletons have rotational joints only)")
         if jtype in ("floating", "planar"):
             jfail(f"{jtype} joints are not supported (the root pose is searched anyway; remove the joint "
                   "and let the child link be the root)")
-        if jtype not in ("revolute", "continuous", "fixed"):
-            jfail(f"unknown joint type {jtype!r} (expected revolute, continuous or fixed)")
+        if jtype not in ("revolute", "continuous", "prismatic", "fixed", "spherical"):
+            jfail(f"unknown joint type {jtype!r} (expected revolute, continuous, prismatic or fixed)")
         child = ends["child"]
         if child in joint_of_child:
             fail(f"closed loop: link {child!r} is the child of both joint {joint_of_child[child][0]!r} "
                  f"and joint {jname!r}")
         if child == ends["parent"]:
             jfail(f"closed loop: link {child!r} is its own parent")
-        xyz, R = _origin(el, where, jfail)
+        xyz, R = _origin(el, "", jfail)
         spec = dict(parent=ends["parent"], offset=tuple(xyz), rest_matrix=R, attach=0.0)
         if jtype == "fixed":
             spec["joint"] = "fixed"
+        elif jtype == "spherical":
+            spec.update(joint="ball", limits=[[-180.0, 180.0]] * 3)
         else:
             axis = _numbers(el.find("axis").get("xyz") if el.find("axis") is not None else None, 3,
                             "<axis xyz>", (1, 0, 0), jfail)
             if not np.linalg.norm(axis) > 0:
                 jfail("the joint axis must be a non-zero vector")
-            spec.update(joint="hinge", axis=tuple(axis / np.linalg.norm(axis)))
+            spec.update(joint="slide" if jtype == "prismatic" else "hinge", axis=tuple(axis / np.linalg.norm(axis)))
             if jtype == "continuous":
                 spec["limits"] = [[-180.0, 180.0]]
             else:
                 lim = el.find("limit")
                 if lim is None:
-                    jfail("a revolute joint needs a <limit lower=... upper=...> element")
+                    jfail(f"a {jtype} joint needs a <limit lower=... upper=...> element")
                 lo = _numbers(lim.get("lower"), 1, "<limit lower>", (0.0,), jfail)[0]
                 hi = _numbers(lim.get("upper"), 1, "<limit upper>", (0.0,), jfail)[0]
                 if lo > hi:
                     jfail(f"inverted limits lower={lo} > upper={hi}")
-                spec["limits"] = [[float(np.rad2deg(lo)), float(np.rad2deg(hi))]]
+                # a revolute joint's limits in radians (LinkSpec: degrees); a prismatic joint's in metres
+                spec["limits"] = [[lo, hi] if jtype == "prismatic" else [float(np.rad2deg(lo)), float(np.rad2deg(hi))]]
         joint_of_child[child] = (jname, spec)
 
     roots = [n for n in links if n not in joint_of_child]
