@@ -442,6 +442,31 @@ def test_integer_npy_holds_stored_units_like_a_png(tmp_path):
     assert np.allclose(load_depth(tmp_path / "mm.npy", depth_scale=0.0001)[1, 1], 0.15)
 
 
+@pytest.mark.filterwarnings("ignore:ImageIO's vendored tifffile:DeprecationWarning")
+@pytest.mark.parametrize("ext", [".tif", ".pfm"])
+def test_float_images_are_metres_integer_images_stored_units(tmp_path, ext):
+    """A float depth map (a renderer's Z pass, ROS 32FC1) holds metres whatever the depth
+    scale; a 16-bit TIFF holds millimetres like a PNG."""
+    import imageio.v3 as iio
+
+    rng = np.random.default_rng(3)
+    metres = rng.uniform(0.5, 4.0, (30, 40)).astype(np.float32)
+    metres[3:7, 5:9] = np.nan
+    metres[10, :] = 0.0
+    iio.imwrite(tmp_path / f"m{ext}", metres)
+    d = load_depth(tmp_path / f"m{ext}")
+    ok = np.isfinite(metres) & (metres > 0)
+    np.testing.assert_array_equal(d[ok], metres[ok])
+    assert np.isnan(d[~ok]).all()
+    np.testing.assert_array_equal(load_depth(tmp_path / f"m{ext}", depth_scale=0.0002)[ok], metres[ok])
+    if ext == ".tif":
+        mm = np.round(np.nan_to_num(metres) * 1000).astype(np.uint16)
+        iio.imwrite(tmp_path / "mm.tif", mm)
+        got = load_depth(tmp_path / "mm.tif")
+        np.testing.assert_allclose(got[mm > 0], mm[mm > 0] * np.float32(0.001), rtol=1e-6)
+        assert np.isnan(got[mm == 0]).all()
+
+
 def test_special_files_are_refused_without_blocking(tmp_path):
     os.mkfifo(tmp_path / "pipe.png")  # opening a FIFO would wait for a writer forever
     with pytest.raises(DepthError, match="not a regular file"):

@@ -2,6 +2,9 @@
 
 - ``.png``: 16-bit single-channel depth in millimetres (the Kinect convention);
   ``depth_scale`` (default 0.001) converts the stored integers to metres.
+- Other single-channel images imageio reads (e.g. ``.tif``, ``.pfm``): integer
+  pixels are stored units like a PNG's (times ``depth_scale``); float pixels are
+  metres (the convention of float depth maps: ROS ``32FC1``, renderers' Z passes).
 - ``.npy``: a 2-D float array of depth in metres (NaN/inf/0: no measurement);
   an integer array holds stored units like a PNG (times ``depth_scale``).
 - Intrinsics: ``kinect`` (the v1 preset, 640x480 images), ``fx,fy,cx,cy``, or a
@@ -141,7 +144,7 @@ _PNG_CHANNELS = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}
 
 
 def _read_image(path: str, depth_scale: float) -> np.ndarray:
-    """A single-channel 16-bit (or float) image scaled to metres."""
+    """A single-channel 16-bit (or other integer) image scaled to metres, or a float image in metres."""
     try:
         hdr = _png_header(path)
     except OSError as e:
@@ -176,9 +179,10 @@ def _read_image(path: str, depth_scale: float) -> np.ndarray:
     if img.dtype.kind not in "uif":
         raise DepthError(f"{path}: unsupported pixel type {img.dtype}")
     _check_shape(img.shape, path)
+    if img.dtype.kind == "f":  # float depth maps are metres, like a float .npy
+        return img.astype(np.float32)
     depth = img.astype(np.float32) * np.float32(depth_scale)
-    if img.dtype.kind in "ui":
-        depth[img == 0] = np.nan
+    depth[img == 0] = np.nan
     return depth
 
 
