@@ -25,3 +25,10 @@ class IntrinsicsError(JaxposeError):
 
 class ConfigError(JaxposeError):
     """A fit, render or experiment configuration is invalid."""
+
+
+class InputWarning(UserWarning):
+    """An input that can be fitted but probably not as meant (e.g. a cloud in the wrong unit).
+
+    The command line prints it as ``jaxpose: warning: <message>``; a fit's result
+    file lists it under ``warnings``."""

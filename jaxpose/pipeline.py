@@ -3,17 +3,18 @@
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from .camera import Intrinsics, cloud_view, depth_to_cloud, sensor_points_to_cloud
-from .errors import ConfigError, DepthError
+from .errors import ConfigError, DepthError, InputWarning
 from .io.cloud_file import is_cloud_file, load_points, parse_viewpoint, to_sensor_frame
 from .io.depth_file import load_depth, parse_intrinsics
 from .io.fit_result import file_sha256, result_document
 from .io.skeleton_file import load_skeleton, resolve_skeleton_path
-from .objective import Cloud
+from .objective import Cloud, cloud_spread
 from .search import FitConfig, FitResult, fit_cloud
 from .skeleton import Skeleton
 
@@ -181,6 +182,30 @@ def _sampling_record(options: DepthOptions, cloud: Cloud) -> dict:
     }
 
 
+SCALE_MARGIN = 1.5  # how far outside the skeleton's scale range a cloud's size is only warned about
+
+
+def scale_warning(skel: Skeleton, cloud: Cloud, source: str) -> str | None:
+    """A warning when the cloud's size is far outside what the skeleton's scale range can
+    explain (more than :data:`SCALE_MARGIN` times beyond it), usually a cloud in another unit
+    than metres; ``None`` otherwise.
+
+    The size is the cloud's RMS spread against the rest-pose model's (the scale the search
+    starts from).  On the rendered data sets (52 images) and 14 robot models seen from one
+    side it lay within 0.77 .. 1.2 times the true scale, so 1.5 times beyond the range leaves
+    room for poses and partial views and still catches millimetres read as metres (1000x) or a
+    depth image written at 5000 units per metre and read as millimetres (5x)."""
+    from .search.fit import rest_model  # the search module's, not the package's ``fit``
+
+    ratio = float(cloud_spread(cloud) / rest_model(skel).spread)
+    lo, hi = float(skel.scale_lo), float(skel.scale_hi)
+    if lo / SCALE_MARGIN <= ratio <= hi * SCALE_MARGIN:
+        return None
+    return (f"{source}: the points spread {ratio:.3g} times as wide as skeleton {skel.name!r} at rest, far outside "
+            f"its scale range {lo:g} .. {hi:g}, so the fit will sit at the range's edge; check the unit (a depth "
+            "image's depth scale, a point cloud's cloud scale) and the skeleton")
+
+
 def load_fit_skeleton(skeleton: str | Skeleton, search_lengths: bool = False) -> tuple[Skeleton, str | None]:
     """The skeleton to fit and its file (``None`` for a :class:`Skeleton` object)."""
     if isinstance(skeleton, Skeleton):
@@ -217,6 +242,9 @@ def fit_depth_file(
     else:
         depth, k, cloud = load_observation(depth_path, options)
         inputs, frame = _depth_record(depth_path, options, k, cloud), None
+    notes = [w for w in (scale_warning(skel, cloud, str(depth_path)),) if w]
+    for w in notes:
+        warnings.warn(w, InputWarning, stacklevel=2)
     result = fit_cloud(cloud, skel, seed, config, progress)
     if not (np.isfinite(float(result.cost)) and np.all(np.isfinite(np.asarray(result.links.end)))):
         raise ConfigError(
@@ -227,4 +255,5 @@ def fit_depth_file(
     if frame:
         doc["frame"] = frame
     doc["skeleton"]["search_lengths"] = bool(search_lengths)
+    doc["warnings"] = notes
     return FitOutput(skel, result, depth, k, doc)

@@ -100,6 +100,7 @@ def test_result_json_schema(ga_result, scene):
     assert cfg["objective"]["free_space_weight"] == 0
     assert doc["versions"]["jaxpose"] and doc["versions"]["jax"] and doc["versions"]["numpy"]
     assert doc["timing"]["wall_seconds"] > 0
+    assert doc["warnings"] == []  # a cloud of the skeleton's size
 
 
 def test_same_seed_gives_identical_numbers(ga_result, scene, capsys):

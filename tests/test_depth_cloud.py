@@ -191,3 +191,25 @@ def test_plane_removal_keeps_what_background_subtraction_keeps(tmp_path):
         depth_to_cloud(depth, k, remove_planes=-1)
     with pytest.raises(DepthError, match="plane_tolerance"):
         sensor_points_to_cloud(pts[scene], plane_tolerance=float("nan"), remove_planes=1)
+
+
+def test_scale_warning_catches_a_cloud_in_the_wrong_unit():
+    """The bundled spider image, in metres, needs no warning; the same points read in
+    tenths (10x) or millimetres read as metres would be fitted at the edge of the
+    skeleton's scale range, and the warning says so."""
+    import os
+
+    from jaxpose.demo import DATA
+    from jaxpose.io.skeleton_file import load_skeleton
+    from jaxpose.objective import Cloud
+    from jaxpose.pipeline import DepthOptions, load_observation, scale_warning
+
+    skel = load_skeleton("spider")
+    image, background = (os.path.join(DATA, f"spider_demo{s}.png") for s in ("", "_background"))
+    _, _, cloud = load_observation(image, DepthOptions(background=background))
+    assert scale_warning(skel, cloud, "demo.png") is None
+    for factor in (10.0, 1 / 10):
+        big = Cloud(cloud.points * factor, cloud.weights)
+        msg = scale_warning(skel, big, "demo.png")
+        assert msg.startswith("demo.png: the points spread") and "scale range 0.5 .. 2" in msg and "unit" in msg
+    assert scale_warning(skel, Cloud(cloud.points * 1.8, cloud.weights), "demo.png") is None  # a big spider

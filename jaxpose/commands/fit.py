@@ -6,6 +6,8 @@ import argparse
 import dataclasses
 import math
 import os
+import sys
+import warnings
 
 from ..errors import ConfigError
 from ..objective import ObjectiveConfig
@@ -209,6 +211,17 @@ def depth_options(args):
     )
 
 
+def _show_input_warning(message, category, filename, lineno, file=None, line=None):
+    """Print an :class:`~jaxpose.errors.InputWarning` as one ``jaxpose: warning:`` line (before the
+    search starts, so it stands above the progress bar); other warnings as Python prints them."""
+    from ..errors import InputWarning
+
+    if issubclass(category, InputWarning):
+        print(f"jaxpose: warning: {message}", file=sys.stderr, flush=True)
+    else:
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
 def run(args: argparse.Namespace) -> int:
     from ..io.cloud_file import is_cloud_file
     from ..io.results import write_json
@@ -245,8 +258,10 @@ def run(args: argparse.Namespace) -> int:
         label = f"{i + 1}/{len(jobs)} {os.path.basename(path)} " if len(jobs) > 1 else ""
         bar = ProgressBar(config.generations, quiet=args.quiet, label=label)
         try:
-            out = fit_depth_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
-                                 search_lengths=args.search_lengths, skeleton_file=skel_file)
+            with warnings.catch_warnings():
+                warnings.showwarning = _show_input_warning
+                out = fit_depth_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
+                                     search_lengths=args.search_lengths, skeleton_file=skel_file)
         finally:
             bar.close()  # end the progress line, also before an error message or Ctrl-C
         msg = (f"{label}{out.skeleton.name}: cost {out.document['cost']:.5f}, "
