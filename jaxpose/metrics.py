@@ -69,7 +69,7 @@ def pcp(pred_start, pred_end, true_start, true_end, fraction: float = PCP_FRACTI
     err = endpoint_errors(pred_start, pred_end, true_start, true_end)
     ts, te = _arrays(true_start, true_end)
     tol = fraction * np.linalg.norm(te - ts, axis=-1)
-    return np.all(err <= tol[:, None], axis=-1)
+    return np.all(err <= tol[:, None], axis=-1) & pcp_scored(ts, te)
 
 
 def pcp_abs(pred_start, pred_end, true_start, true_end, threshold: float = PCK_THRESHOLD) -> np.ndarray:

@@ -193,6 +193,20 @@ def test_eval_result_against_truth_as_json(ga_result, scene, capsys):
     assert json.loads(stdout)["strict"]["pcp"] == 1.0
 
 
+def test_a_cloud_in_the_wrong_unit_is_fitted_with_a_warning(ga_result, scene, tmp_path, capsys):
+    """Millimetres read at 1 cm per unit: ten times the spider's size.  The fit goes on (same
+    compiled programs as the other tiny fits), says so in one warning line and in the result."""
+    out = tmp_path / "big.json"
+    _, err = _run(capsys, "fit", scene / "depth.png", "--intrinsics", scene / "truth.json", "--seed", "7",
+                  "--depth-scale", "0.01", "--far", "100", "--out", out, *FIT)
+    lines = [line for line in err.splitlines() if line]
+    assert len(lines) == 1 and lines[0].startswith(f"jaxpose: warning: {scene / 'depth.png'}: the points spread")
+    assert "scale range 0.5 .. 2" in lines[0]
+    doc = json.loads(out.read_text())
+    assert doc["warnings"] == [lines[0].removeprefix("jaxpose: warning: ")]
+    assert doc["params"]["scale"] > 1.9  # near the range's edge (2), as the warning says
+
+
 def test_skeleton_command(capsys):
     stdout, _ = _run(capsys, "skeleton", "spider", "--genome")
     lines = stdout.splitlines()

@@ -126,14 +126,19 @@ def test_planar_root_joints_are_the_root_pose_and_slides_are_searched():
     np.testing.assert_allclose(skel.offset[torso], 0, atol=0)
     np.testing.assert_allclose(skel.rest_rotation[torso], np.eye(3), atol=0)
     assert not any(n.startswith("torso/") for n in skel.link_names)
-    tele = skel.index("shin/telescope")  # anchored off the body origin: a chain link, the body fixed below it
-    assert skel.joint_types[tele] == "slide" and skel.joint_types[skel.index("shin")] == "fixed"
+    tele = skel.index("shin")  # a slide's pos does not matter (it moves the whole frame): no extra chain link
+    assert skel.joint_types[tele] == "slide" and not any(n.startswith("shin/") for n in skel.link_names)
     np.testing.assert_allclose([skel.angle_lo[tele, 0], skel.angle_hi[tele, 0]], [-0.07, 0.13], atol=1e-6)
     assert skel.joint_types[skel.index("foot/ankle_slide")] == "slide"
     assert skel.joint_types[skel.index("foot")] == "hinge"
-    rail = skel.index("tail")  # unlimited: within the model's extent
-    np.testing.assert_allclose([skel.angle_lo[rail, 0], skel.angle_hi[rail, 0]],
-                               [-m.stat.extent, m.stat.extent], rtol=1e-6)
+    rail = skel.index("tail")  # unlimited: within the model's size (its body geoms; the 5 m floor left out)
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    body = m.geom_bodyid > 0
+    c = d.geom_xpos[body].mean(0)
+    reach = np.max(np.linalg.norm(d.geom_xpos[body] - c, axis=1) + m.geom_rbound[body])
+    assert 0.5 < reach < 1.0  # the walker is about a metre and a half tall
+    np.testing.assert_allclose([skel.angle_lo[rail, 0], skel.angle_hi[rail, 0]], [-reach, reach], rtol=1e-6)
     # searched: the root (7), hip, telescope, ankle slide and hinge, rail
     assert skel.num_dof == 7 + 5
     pose = pose_from_qpos(skel, m, m.qpos0)  # qpos0: the rest pose, the torso where the file puts it

@@ -205,6 +205,26 @@ def test_eval_command_on_two_truth_files(tmp_path, capsys):
         _eval([str(tmp_path / "nope.json"), str(tmp_path / "truth.json")])
 
 
+def test_eval_command_leaves_links_of_zero_length_unscored(tmp_path, capsys):
+    skel = load_skeleton("spider")
+    ts, te = _links(skel, rest_pose(skel, root_t=(0, 0, 1.0)))
+    te = te.copy()
+    te[0] = ts[0]  # the body as a point (a sphere)
+    _truth_file(tmp_path / "truth.json", skel, ts, te)
+    assert _eval([str(tmp_path / "truth.json"), str(tmp_path / "truth.json")]) == 0
+    text = capsys.readouterr().out
+    assert "8 links, 24 symmetries (1 of length zero, not scored by PCP)" in text
+    assert "misplaced" not in text  # the unscored body is not listed as misplaced
+    names = list(skel.link_names)
+    _truth_file(tmp_path / "points.json", skel, ts, ts, names)  # every link a point: no PCP at all
+    assert _eval([str(tmp_path / "points.json"), str(tmp_path / "points.json"), "--json"]) == 0
+    m = json.loads(capsys.readouterr().out)
+    assert m["strict"]["pcp"] is None and m["symmetric"]["pcp"] is None and m["pcp_links"] == 0
+    assert _eval([str(tmp_path / "points.json"), str(tmp_path / "points.json")]) == 0
+    row = [line for line in capsys.readouterr().out.splitlines() if "half true length" in line][0]
+    assert row.split()[-2:] == ["-", "-"]
+
+
 def test_mirrored_hinge_legs_are_interchangeable():
     """The MJCF ant's legs bend about mirrored axes with negated limits: still interchangeable."""
     pytest.importorskip("mujoco")

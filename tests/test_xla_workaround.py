@@ -10,7 +10,6 @@ import subprocess
 import sys
 import textwrap
 
-
 FIT = textwrap.dedent(
     """
     import jaxpose as jp  # first: applies the workaround before JAX computes anything

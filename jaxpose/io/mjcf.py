@@ -20,7 +20,8 @@ no joint                    ``fixed`` (the body is welded to its parent)
 ``ball``                    ``ball`` (roll, pitch, yaw of the joint quaternion);
                             a limited ball of range ``r``: [-r, r] for each angle
 ``slide``                   ``slide`` along the joint axis; displacement ``qpos - qpos0``;
-                            limits ``range - ref`` (metres), unlimited: +-``stat.extent``
+                            limits ``range - ref`` (metres), unlimited: +- the model's
+                            size (its body geoms' bounding radius at ``qpos0``)
 ``free``                    the searched root pose (top-level body only, at most one)
 joints of the only          the searched root pose: the camera does not know the world, so
 top-level body              a planar root (``rootx``/``rootz`` slides and a hinge, as in
@@ -29,15 +30,17 @@ several joints on a body    a chain of zero-length, zero-radius links ``body/joi
                             joint each; the body's own link comes last and carries the geometry
 ==========================  ================================================================
 
-A joint rotates about its anchor (``<joint pos>``).  The link carrying it has its
-origin at the anchor; when the last joint of a body is anchored away from the body
+A hinge or ball rotates about its anchor (``<joint pos>``); a slide moves the whole
+body frame, so its anchor is taken to be the previous joint's (or the body origin).
+The link carrying a joint has its origin at the anchor; when the last joint of a body is anchored away from the body
 origin, the body link itself is a ``fixed`` link back at the body origin.
-When the world holds one body and that body has joints (a free joint, or
-slides and hinges), the body's frame is the searched root frame and its joints
-are not searched separately: they would only repeat the root's degrees of freedom.  With
-``search_lengths`` the ranges are as in :mod:`jaxpose.io.urdf`.  Top-level bodies
-without a free joint hang from the searched root frame (the world of the file);
-a free body may not share the world with other top-level bodies.  Equality
+Top-level bodies hang from the searched root frame (the world of the file), except
+when the world holds one body and that body has joints (a free joint, or
+slides, hinges, a ball): then the body's frame is the searched root frame and its
+joints are not searched separately, as they would only repeat the root's degrees
+of freedom (the body's ``pos``/``quat`` go into the root pose too).  A free body may
+not share the world with other top-level bodies.  With ``search_lengths`` the
+ranges are as in :mod:`jaxpose.io.urdf`.  Equality
 constraints, tendons, sites, actuators and the world body's own geoms (floors)
 are ignored.
 
@@ -219,6 +222,8 @@ def _plan(model, source, search_lengths, geometry=True):
     # the searched root pose's degrees of freedom: that body's frame is the root frame
     root_body = top[0] if len(top) == 1 and np.any(jnt_body == top[0]) else None
     shapes = _geometry(model) if geometry else [[] for _ in range(nb)]
+    unlimited_slide = np.any((jtype == _SLIDE) & ~np.asarray(model.jnt_limited, bool))
+    reach = _reach(model) if unlimited_slide else None
     taken = set(body_names[1:])
     specs, joint_links = [], []
     for b in range(1, nb):
@@ -233,6 +238,8 @@ def _plan(model, source, search_lengths, geometry=True):
         on_body = False
         for m, j in enumerate(joints):
             anchor = np.asarray(model.jnt_pos[j], float)
+            if jtype[j] == _SLIDE:  # a slide moves the whole frame: its anchor is any point, take the last one
+                anchor = prev if prev is not None else np.zeros(3)
             on_body = m == len(joints) - 1 and np.all(np.abs(anchor) < 1e-12)
             if on_body:
                 lname = bname
@@ -245,7 +252,7 @@ def _plan(model, source, search_lengths, geometry=True):
                 where = dict(offset=tuple(pos + R @ anchor), rest_matrix=R)
             else:
                 where = dict(offset=tuple(anchor - prev), rest_matrix=np.eye(3))
-            kind = _joint_spec(model, j)
+            kind = _joint_spec(model, j, reach)
             geom = _capsule_spec(shapes[b], search_lengths) if on_body else dict(length=0.0, radius=0.0)
             specs.append(LinkSpec(name=lname, parent=parent_link, attach=0.0, **where, **kind, **geom))
             joint_links.append((lname, j))
@@ -260,15 +267,28 @@ def _plan(model, source, search_lengths, geometry=True):
     return specs, joint_links, root_body
 
 
-def _joint_spec(model, j):
+def _reach(model) -> float:
+    """The model's size at ``qpos0``: the largest distance of a body geom's bounding sphere from the
+    geoms' mean centre (world-body geoms such as floors left out; bodies only when there are no geoms)."""
+    mujoco = _import_mujoco()
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    on_body = np.asarray(model.geom_bodyid) > 0
+    if on_body.any():
+        pts, r = np.asarray(data.geom_xpos)[on_body], np.asarray(model.geom_rbound)[on_body]
+    else:
+        pts, r = np.asarray(data.xpos)[1:], 0.0
+    return max(float(np.max(np.linalg.norm(pts - pts.mean(0), axis=1) + r)), 0.1)
+
+
+def _joint_spec(model, j, reach=None):
     jt = int(model.jnt_type[j])
     limited = bool(model.jnt_limited[j])
     lo, hi = (float(v) for v in model.jnt_range[j])
     if jt in (_HINGE, _SLIDE):
         ref = float(model.qpos0[model.jnt_qposadr[j]])
         axis = tuple(np.asarray(model.jnt_axis[j], float))
-        if jt == _SLIDE:  # metres; an unlimited slide moves within the model's size (MuJoCo's stat.extent)
-            reach = float(model.stat.extent)
+        if jt == _SLIDE:  # metres; an unlimited slide moves within the model's size (:func:`_reach`)
             lim = [lo - ref, hi - ref] if limited else [-reach, reach]
             return dict(joint="slide", axis=axis, limits=[list(map(float, lim))])
         lim = np.rad2deg([lo - ref, hi - ref]) if limited else [-180.0, 180.0]

@@ -388,7 +388,7 @@ def _urdf_specs(root, path, search_lengths):
             jfail(f"{jtype} joints are not supported (the root pose is searched anyway; remove the joint "
                   "and let the child link be the root)")
         if jtype not in ("revolute", "continuous", "prismatic", "fixed", "spherical"):
-            jfail(f"unknown joint type {jtype!r} (expected revolute, continuous, prismatic or fixed)")
+            jfail(f"unknown joint type {jtype!r} (expected revolute, continuous, prismatic, fixed or spherical)")
         child = ends["child"]
         if child in joint_of_child:
             fail(f"closed loop: link {child!r} is the child of both joint {joint_of_child[child][0]!r} "
