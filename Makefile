@@ -30,6 +30,7 @@ data: $(STAMP)
 
 paper: $(STAMP)
 	$(BIN)/python experiments/paper_table.py
+	$(BIN)/python experiments/mujoco_views.py
 
 sweep: $(STAMP)
 	$(BIN)/python experiments/sweep_population.py

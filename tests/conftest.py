@@ -6,6 +6,9 @@ import os
 # depend on (or fill) a user's cache, so it is off here.  tests/test_cli.py turns
 # it on explicitly where it is tested.
 os.environ["JAXPOSE_CACHE_DIR"] = "0"
+# MuJoCo picks its OpenGL platform when it is imported; tests/test_mujoco_views.py renders
+# off screen (headless EGL), so ask for that before any test imports mujoco.
+os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 import pytest  # noqa: E402

@@ -1,0 +1,308 @@
+"""Robot models seen through MuJoCo's own renderer, fitted by jaxpose, scored against MuJoCo's kinematics.
+
+Every other data set of this project is rendered by jaxpose's ray caster from the very
+capsules jaxpose fits.  Here the depth images come from a renderer jaxpose did not
+write (MuJoCo's OpenGL depth buffer, ``mujoco.Renderer``) and show each model's true
+geometry (boxes, cylinders, ellipsoids, meshes), which jaxpose approximates by one
+enclosing capsule per link.  The truth is the pose MuJoCo's joint values give: jaxpose's
+forward kinematics of :func:`~jaxpose.io.mjcf.pose_from_qpos` (equal to MuJoCo's
+``mj_kinematics``, tests/test_import_mjcf.py), moved into the camera's frame.
+
+Per model and view: joint values drawn around ``qpos0`` (``--spread`` times half of each
+range), a free camera on a random orbit (elevation 15-45 degrees down, any azimuth)
+framing the model, the depth buffer in millimetres with Gaussian noise of
+``0.0015 z^2`` m and nothing beyond 0.4-4 m, and a second render with the model's geoms hidden as the background
+image (floors and other world geoms stay in it).  The fit is ``jaxpose.fit_depth_file``
+with the default ``FitConfig`` (``--generations`` to change it).
+
+Needs the ``mujoco`` extra and an OpenGL context (``MUJOCO_GL=egl``, the default set
+here, or ``osmesa``); without one it says so and exits with status 0, so that
+``make paper`` runs anywhere.
+
+    python experiments/mujoco_views.py                   # the test fixtures' robots, 4 views each
+    python experiments/mujoco_views.py --models robot.xml arm.urdf --views 8
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+import xml.etree.ElementTree as ET
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np  # noqa: E402
+
+import jaxpose as jp  # noqa: E402
+from jaxpose.io.results import write_json  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+FIXTURES = os.path.join(ROOT, "tests", "fixtures")
+MODELS = [os.path.join(FIXTURES, f) for f in ("ant.xml", "humanoid_lite.xml", "planar.xml", "arm7.urdf",
+                                              "gripper.urdf")]
+NOISE = 0.0015  # metres at 1 m, growing with the square of depth (a Kinect v1's order)
+RANGE = (0.4, 4.0)  # metres: what the sensor measures
+
+
+def load(path: str):
+    """``(mujoco model, jaxpose skeleton, qpos -> jaxpose Pose)`` of an MJCF or URDF file."""
+    import mujoco
+
+    from jaxpose.io.mjcf import compile_mjcf, pose_from_qpos, skeleton_from_model
+
+    if path.lower().endswith(".urdf"):
+        m = mujoco.MjModel.from_xml_path(path)
+        skel = jp.load_skeleton(path)
+        child = {j.get("name"): j.find("child").get("link") for j in ET.parse(path).getroot().findall("joint")}
+
+        def pose(qpos):  # the URDF root sits at MuJoCo's world origin; MuJoCo keeps the joint names
+            angles = np.zeros((skel.num_links, 3), np.float32)
+            for j in range(m.njnt):
+                angles[skel.index(child[m.joint(j).name]), 0] = qpos[m.jnt_qposadr[j]] - m.qpos0[m.jnt_qposadr[j]]
+            rest = jp.rest_pose(skel)
+            return rest._replace(angles=np.asarray(angles))
+
+        return m, skel, pose
+    m = compile_mjcf(path)
+    skel = skeleton_from_model(m, source=path)
+    return m, skel, lambda qpos: pose_from_qpos(skel, m, qpos)
+
+
+def random_qpos(m, rng, spread: float) -> np.ndarray:
+    """Joint values around ``qpos0`` (clipped into range): hinges and slides normal with ``spread``
+    x half their range (unlimited: half a turn, or the model's size), kept in range; balls a random
+    turn of ``spread`` x 90 degrees in the mean.  The joints of the only top-level body (a free
+    joint, a planar walker's root slides and hinge) stay: they are the root pose, and the camera
+    moves instead (a walker's root slid or tipped at random would sink into its floor)."""
+    import mujoco
+
+    hinge, slide, ball = (int(t) for t in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE,
+                                           mujoco.mjtJoint.mjJNT_BALL))
+    q = m.qpos0.copy()
+    top = [b for b in range(1, m.nbody) if m.body_parentid[b] == 0]
+    for j in range(m.njnt):
+        a, t = int(m.jnt_qposadr[j]), int(m.jnt_type[j])
+        if len(top) == 1 and m.jnt_bodyid[j] == top[0]:
+            continue  # the root body's joints (a planar walker's rootx/rootz/rooty) are the root pose
+        if t in (hinge, slide):
+            if m.jnt_limited[j]:
+                lo, hi = m.jnt_range[j]
+            else:
+                r = np.pi if t == hinge else 0.5 * m.stat.extent
+                lo, hi = q[a] - r, q[a] + r
+            q[a] = np.clip(np.clip(q[a], lo, hi) + spread * (hi - lo) / 2 * rng.standard_normal(), lo, hi)
+        elif t == ball:
+            axis = rng.standard_normal(3)
+            angle = spread * np.pi / 2 * abs(rng.standard_normal())
+            q[a : a + 4] = np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis / np.linalg.norm(axis)])
+    return q
+
+
+def camera_view(m, d, rng, width: int, height: int):
+    """A free camera framing the model's geoms from a random orbit, and its frame and intrinsics.
+
+    Returns ``(mjvCamera, centre (3,), R (3, 3) world -> camera rows: x right, y down, z
+    forward, Intrinsics)``; the camera's centre is set by :func:`render_depth`'s scene."""
+    import mujoco
+
+    body_geoms = np.asarray(m.geom_bodyid) > 0
+    centres = np.asarray(d.geom_xpos)[body_geoms]
+    lookat = centres.mean(0)
+    reach = float(np.max(np.linalg.norm(centres - lookat, axis=1) + np.asarray(m.geom_rbound)[body_geoms]))
+    fovy = np.deg2rad(m.vis.global_.fovy)
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.lookat[:] = lookat
+    cam.distance = float(np.clip(1.2 * reach / np.sin(fovy / 2), 0.8, 3.8))
+    cam.azimuth = float(rng.uniform(0, 360))
+    cam.elevation = float(-rng.uniform(15, 45))
+    fy = (height / 2) / np.tan(fovy / 2)
+    k = jp.Intrinsics(fx=float(fy), fy=float(fy), cx=(width - 1) / 2, cy=(height - 1) / 2, width=width, height=height)
+    return cam, k
+
+
+def render_depth(renderer, m, d, cam, hide_model: bool = False):
+    """MuJoCo's depth image (metres along the optical axis, NaN where nothing is seen) and the
+    camera's ``(centre, R world -> camera)`` (the mean of MuJoCo's two eye cameras)."""
+    import mujoco
+
+    opt = mujoco.MjvOption()
+    saved = m.geom_group.copy()
+    if hide_model:  # a group MuJoCo's default option does not draw
+        m.geom_group[np.asarray(m.geom_bodyid) > 0] = 5
+        opt.geomgroup[5] = 0
+    try:
+        renderer.update_scene(d, camera=cam, scene_option=opt)
+        depth = renderer.render().astype(np.float64)
+    finally:
+        m.geom_group[:] = saved
+    eyes = renderer.scene.camera
+    centre = 0.5 * (np.asarray(eyes[0].pos) + np.asarray(eyes[1].pos))
+    fwd, up = np.asarray(eyes[0].forward), np.asarray(eyes[0].up)
+    R = np.stack([np.cross(fwd, up), -up, fwd])
+    far = 0.99 * m.vis.map.zfar * m.stat.extent
+    depth[depth >= far] = np.nan
+    return depth, centre, R
+
+
+def sensor(depth, rng) -> np.ndarray:
+    """Noise growing with the square of depth, nothing measured outside ``RANGE`` (a Kinect v1's
+    0.4-4 m), then whole millimetres (a 16-bit PNG's content, 0: no measurement)."""
+    noisy = depth + NOISE * depth**2 * rng.standard_normal(depth.shape)
+    seen = np.isfinite(noisy) & (depth >= RANGE[0]) & (depth <= RANGE[1])
+    return np.where(seen, np.round(np.nan_to_num(noisy) * 1000), 0).astype(np.uint16)
+
+
+def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: str, size=(640, 480),
+              plots: int = 1):
+    """Render, fit and score ``views`` views of one model; one record per view, and overlay plots
+    of the first ``plots`` views in ``out_dir``."""
+    import imageio.v3 as iio
+    import mujoco
+
+    from jaxpose.kinematics import forward_kinematics
+    from jaxpose.metrics import evaluate, pcp, pcp_scored
+
+    m, skel, to_pose = load(path)
+    d = mujoco.MjData(m)
+    renderer = mujoco.Renderer(m, size[1], size[0])
+    renderer.enable_depth_rendering()
+    name = os.path.splitext(os.path.basename(path))[0]
+    records = []
+    for v in range(views):
+        rng = np.random.default_rng([seed, v])
+        d.qpos[:] = random_qpos(m, rng, spread)
+        mujoco.mj_kinematics(m, d)
+        cam, k = camera_view(m, d, rng, *size)
+        depth, centre, R = render_depth(renderer, m, d, cam)
+        background, _, _ = render_depth(renderer, m, d, cam, hide_model=True)
+        image = os.path.join(out_dir, f"{name}_{v}_depth.png")
+        bg = os.path.join(out_dir, f"{name}_{v}_background.png")
+        iio.imwrite(image, sensor(depth, rng))
+        iio.imwrite(bg, sensor(background, rng))
+        links = forward_kinematics(skel, to_pose(d.qpos))
+        true_start = (np.asarray(links.start, np.float64) - centre) @ R.T
+        true_end = (np.asarray(links.end, np.float64) - centre) @ R.T
+        options = jp.DepthOptions(intrinsics=f"{k.fx},{k.fy},{k.cx},{k.cy}",
+                                  background=bg if np.isfinite(background).any() else None)
+        t0 = time.perf_counter()
+        out = jp.fit_depth_file(image, skel, config, seed=seed, options=options, skeleton_file=path)
+        seconds = time.perf_counter() - t0
+        res = {link["name"]: link for link in out.document["links"]}
+        ps = np.array([res[n]["start"] for n in skel.link_names])
+        pe = np.array([res[n]["end"] for n in skel.link_names])
+        ev = evaluate(ps, pe, true_start, true_end, skel)
+        # the links PCP misses under the symmetric matching (the one of the MPJPE), by true link
+        idx = {n: i for i, n in enumerate(skel.link_names)}
+        perm = [idx[ev["matching"][n]] for n in skel.link_names]
+        missed = ~pcp(ps[perm], pe[perm], true_start, true_end) & pcp_scored(true_start, true_end)
+        rec = {"model": name, "file": os.path.relpath(path, ROOT) if path.startswith(ROOT) else os.path.basename(path),
+               "view": v, "seed": seed, "links": skel.num_links, "pcp_links": ev["pcp_links"],
+               "points_used": out.document["input"]["points_used"], "cost": out.document["cost"],
+               "seconds": seconds, "camera_distance": cam.distance, "elevation_deg": -cam.elevation,
+               "azimuth_deg": cam.azimuth, **{f"{key}": ev["symmetric"][key] for key in ev["symmetric"]},
+               "pcp_strict": ev["strict"]["pcp"],
+               "misplaced": [n for n, miss in zip(skel.link_names, missed) if miss]}
+        records.append(rec)
+        if v < plots:  # the fit over the depth image, the truth dashed
+            from jaxpose.viz import overlay_figure, save_figure
+
+            truth = [{"start": a.tolist(), "end": b.tolist()} for a, b in zip(true_start, true_end)]
+            fig = overlay_figure(out.depth, out.intrinsics, out.document["links"], truth=truth,
+                                 title=f"{name}: MuJoCo's depth, jaxpose's fit (truth: dashed)")
+            save_figure(fig, os.path.join(out_dir, f"{name}_{v}_overlay.png"))
+        shown = "-" if rec["pcp"] is None else f"{100 * rec['pcp']:.0f}%"
+        print(f"  {name} view {v}: PCP {shown}, PCP@10cm {100 * rec['pcp_10cm']:.0f}%, "
+              f"MPJPE {rec['mpjpe_mm']:.0f} mm, {seconds:.1f} s", flush=True)
+    renderer.close()
+    return records
+
+
+def summary(records):
+    rows = {}
+    for r in records:
+        rows.setdefault(r["model"], []).append(r)
+    out = []
+    for name, rs in rows.items():
+        pcps = [r["pcp"] for r in rs if r["pcp"] is not None]
+        out.append({
+            "model": name, "file": rs[0]["file"], "links": rs[0]["links"], "pcp_links": rs[0]["pcp_links"],
+            "views": len(rs), "pcp": float(np.mean(pcps)) if pcps else None,
+            "pcp_10cm": float(np.mean([r["pcp_10cm"] for r in rs])),
+            "pck_10cm": float(np.mean([r["pck_10cm"] for r in rs])),
+            "mpjpe_mm": float(np.median([r["mpjpe_mm"] for r in rs])),
+            "seconds_median": float(np.median([r["seconds"] for r in rs])),
+        })
+    return out
+
+
+def markdown(rows, machine: str) -> str:
+    lines = ["| model | links (PCP-scored) | views | PCP | PCP@10cm | PCK@10cm | MPJPE (mm, median) "
+             "| s / view (median) |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        pcp = "-" if r["pcp"] is None else f"{100 * r['pcp']:.1f}%"
+        lines.append(f"| {r['model']} | {r['links']} ({r['pcp_links']}) | {r['views']} | {pcp} | "
+                     f"{100 * r['pcp_10cm']:.1f}% | {100 * r['pck_10cm']:.1f}% | {r['mpjpe_mm']:.0f} | "
+                     f"{r['seconds_median']:.1f} |")
+    return "\n".join(lines) + f"\n\nMachine: {machine}. Symmetric scores (interchangeable links matched).\n"
+
+
+def gl_problem() -> str | None:
+    """Why MuJoCo cannot render here (``None``: it can)."""
+    try:
+        import mujoco
+    except ImportError:
+        return "the 'mujoco' package is not installed (pip install 'jaxpose[mujoco]')"
+    try:
+        m = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='.1'/></worldbody></mujoco>")
+        r = mujoco.Renderer(m, 8, 8)
+        r.close()
+    except Exception as e:  # noqa: BLE001 - any failure to get a GL context
+        return (f"MuJoCo cannot open an OpenGL context with MUJOCO_GL={os.environ.get('MUJOCO_GL')} "
+                f"({e.__class__.__name__}: {' '.join(str(e).split())[:120]}); try MUJOCO_GL=osmesa")
+    return None
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--models", nargs="+", default=MODELS, help="MJCF or URDF files (default: the test fixtures)")
+    ap.add_argument("--views", type=int, default=4, help="views (poses and cameras) per model (default 4)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--spread", type=float, default=0.3, help="joint spread, fraction of half the range")
+    ap.add_argument("--generations", type=int, default=None, help="FitConfig.generations (default: automatic)")
+    ap.add_argument("--plots", type=int, default=1, help="overlay plots of the first N views per model (default 1)")
+    ap.add_argument("--out", default=os.path.join(ROOT, "experiments", "results", "mujoco_views"),
+                    help="folder for images, JSON and the Markdown table")
+    args = ap.parse_args(argv)
+    problem = gl_problem()
+    if problem:
+        print(f"mujoco_views: skipped: {problem}")
+        return 0
+    from common import machine_id, machine_info  # experiments/ is on the path when run as a script
+
+    os.makedirs(args.out, exist_ok=True)
+    config = jp.FitConfig(generations=args.generations)
+    records = []
+    for path in args.models:
+        print(f"{os.path.basename(path)}:", flush=True)
+        try:
+            records += run_model(os.path.abspath(path), args.views, args.seed, args.spread, config, args.out,
+                                 plots=args.plots)
+        except (jp.JaxposeError, ValueError) as e:  # e.g. a mesh MuJoCo cannot find: the others still run
+            print(f"  skipped: {' '.join(str(e).split())[:200]}", flush=True)
+    rows = summary(records)
+    machine = machine_id()
+    write_json(os.path.join(args.out, "mujoco_views.json"),
+               {"machine": machine_info(), "config": config.to_dict(), "spread": args.spread, "noise": NOISE,
+                "summary": rows, "views": records})
+    table = markdown(rows, machine)
+    with open(os.path.join(args.out, "mujoco_views.md"), "w") as f:
+        f.write(table)
+    print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
