@@ -11,6 +11,7 @@ import pytest
 
 from jaxpose.errors import SkeletonError
 from jaxpose.io.skeleton_file import load_skeleton
+from jaxpose.io import urdf as U
 from jaxpose.io.urdf import DEFAULT_MESH_RADIUS, load_urdf
 from jaxpose.kinematics import forward_kinematics
 from jaxpose.skeleton import Pose, genome_layout
@@ -367,3 +368,33 @@ def test_prismatic_and_spherical_joints(tmp_path):
     ball = load_urdf(str(path))
     assert ball.joint_types[ball.index("b")] == "ball"
     np.testing.assert_allclose(ball.angle_hi[ball.index("b")], [np.pi] * 3, atol=1e-6)
+
+
+def test_a_mesh_link_gets_the_capsule_fitted_to_its_surface(tmp_path):
+    """Vertices sampled (unevenly, as CAD meshes are) on a known capsule's surface, plus a small
+    knob sticking out 3 cm: the link's capsule is that capsule within a millimetre, not the one
+    enclosing the knob too."""
+    rng = np.random.default_rng(4)
+    a, b, r = np.array([0.01, -0.02, 0.03]), np.array([0.05, 0.21, 0.09]), 0.04
+    axis = (b - a) / np.linalg.norm(b - a)
+    e1 = np.cross(axis, [1.0, 0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    t = np.concatenate([rng.uniform(0, 1, 300), rng.uniform(0.8, 1, 500)])  # denser at one end
+    phi = rng.uniform(0, 2 * np.pi, len(t))
+    side = a + np.outer(t * np.linalg.norm(b - a), axis) + r * (np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2))
+    caps = rng.normal(size=(200, 3))
+    caps = r * caps / np.linalg.norm(caps, axis=1, keepdims=True)
+    caps += np.where((caps @ axis)[:, None] > 0, b, a)  # the hemispheres' outer halves
+    caps = caps[((caps - a) @ axis < 0) | ((caps - b) @ axis > 0)]
+    knob = a + 0.5 * (b - a) + (r + 0.03) * e1 + rng.normal(0, 0.003, (12, 3))
+    v = np.concatenate([side, caps, knob])
+    (tmp_path / "part.obj").write_text("".join(f"v {x} {y} {z}\n" for x, y, z in v))
+    skel = load_urdf(_mesh_urdf(tmp_path, "part.obj", origin='xyz="0 0 0" rpy="0 0 0"', scale="1 1 1"))
+    i = skel.index("tool")
+    s, d, L = np.asarray(skel.seg_start[i]), np.asarray(skel.seg_dir[i]), float(skel.length[i])
+    ends = sorted([s, s + L * d], key=lambda p: float(p @ axis))
+    np.testing.assert_allclose(ends, [a, b], atol=1e-3)
+    assert float(skel.radius[i]) == pytest.approx(r, abs=1e-3)
+    assert U.enclosing_capsule([U.points_shape(v)])[3] > r + 0.01  # what enclosing would have given
+    # a mesh of fewer than 16 vertices keeps the enclosing capsule (test_mesh_files_are_read_and_enclosed)

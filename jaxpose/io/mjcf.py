@@ -54,7 +54,9 @@ the body's link gets the one capsule that encloses all of them:
 * ``ellipsoid``: along its longest axis with the larger other radius (encloses it);
 * ``box``: enclosing its eight corners, normally along its longest side with the
   half-diagonal of the two others as radius;
-* ``mesh``: enclosing every vertex of the compiled mesh (MuJoCo reads the file).
+* ``mesh``: enclosing every vertex of the compiled mesh (MuJoCo reads the file); a body
+  of meshes only (16 vertices or more) gets the capsule fitted to their vertices instead
+  (:func:`~jaxpose.io.urdf.link_capsule`).
 """
 
 from __future__ import annotations
@@ -67,7 +69,7 @@ import numpy as np
 from ..errors import SkeletonError
 from ..skeleton import LinkSpec, Pose, Skeleton, build_skeleton
 from .urdf import (
-    box_shape, capsule_shape, ellipsoid_shape, enclosing_capsule, length_range, points_shape, sphere_shape,
+    box_shape, capsule_shape, ellipsoid_shape, length_range, link_capsule, points_shape, sphere_shape,
 )
 
 _MISSING = "MJCF support needs the 'mujoco' extra: pip install 'jaxpose[mujoco]'"
@@ -298,7 +300,7 @@ def _joint_spec(model, j, reach=None):
 
 
 def _capsule_spec(shapes, search_lengths):
-    start, d, length, radius = enclosing_capsule(shapes)
+    start, d, length, radius = link_capsule(shapes)
     return dict(seg_start=tuple(start), seg_dir=tuple(d), length=length, radius=radius,
                 length_range=length_range(length, search_lengths))
 
