@@ -446,7 +446,8 @@ def build_skeleton(
                 fail("length_range [0, 0] contradicts a positive length", l.name)
             length[i] = np.clip(length[i], llo[i], lhi[i])
         if require_geometry and not lhi[i] > 0:
-            fail(f"length must be > 0, got {l.length}" + (f" with range {list(l.length_range)}" if l.length_range is not None else ""), l.name)
+            rng = f" with range {list(l.length_range)}" if l.length_range is not None else ""
+            fail(f"length must be > 0, got {l.length}{rng}", l.name)
         try:
             radius[i] = float(l.radius)
         except (TypeError, ValueError):

@@ -19,7 +19,8 @@ def _pyplot():
     return plt
 
 
-def overlay_figure(depth: np.ndarray, k: Intrinsics, links: list[dict], title: str = "", truth: list[dict] | None = None):
+def overlay_figure(depth: np.ndarray, k: Intrinsics, links: list[dict], title: str = "",
+                   truth: list[dict] | None = None):
     """Figure: the depth image with the fitted capsule axes projected on it."""
     plt = _pyplot()
     h, w = depth.shape

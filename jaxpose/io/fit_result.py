@@ -40,7 +40,8 @@ def package_versions() -> dict:
 
 def links_table(skel: Skeleton, links) -> list[dict]:
     """Every link by name with its parent, joint anchor, capsule end points and radius."""
-    origin, start, end, radius = (np.asarray(a, np.float64) for a in (links.origin, links.start, links.end, links.radius))
+    origin, start, end, radius = (np.asarray(a, np.float64)
+                                  for a in (links.origin, links.start, links.end, links.radius))
     return [
         {
             "name": n,

@@ -40,7 +40,8 @@ _LINK_KEYS = {
 
 def _shipped_path(name: str) -> str | None:
     here = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    for base in (os.path.join(here, "skeletons"), os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "skeletons")):
+    package_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    for base in (os.path.join(here, "skeletons"), os.path.join(package_dir, "skeletons")):
         p = os.path.join(base, f"{name}.toml")
         if os.path.isfile(p):
             return p

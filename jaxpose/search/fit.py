@@ -33,7 +33,8 @@ from ..errors import ConfigError
 from ..kinematics import Links, forward_kinematics
 from ..objective import (Cloud, ObjectiveConfig, Observation, cloud_centre, cloud_spread, num_blocks, observe,
                          population_cost)
-from ..skeleton import Bounds, Pose, Skeleton, axis_angle_matrix, decode, encode, genome_bounds, genome_layout, rest_pose
+from ..skeleton import (Bounds, Pose, Skeleton, axis_angle_matrix, decode, encode, genome_bounds, genome_layout,
+                        rest_pose)
 from .baselines import BoundedHillClimbing, evosax_strategy
 from .ga import BranchSwapGA, subtree_masks, uniform_and_normal
 from .refine import refine
@@ -321,7 +322,8 @@ def _blocks_at(config: FitConfig, n_points: int, generation):
     switch = coarse_switch(config, n_points)
     if switch is None:
         return None
-    return jnp.where(generation < switch, _coarse_blocks(config, n_points), num_blocks(n_points, config.objective.block))
+    return jnp.where(generation < switch, _coarse_blocks(config, n_points),
+                     num_blocks(n_points, config.objective.block))
 
 
 def _rescore1(skel: Skeleton, config: FitConfig, st: SearchState) -> SearchState:
@@ -983,6 +985,7 @@ class Fitter:
         return res._replace(wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32))
 
 
-def fit_cloud(cloud: Cloud, skeleton: Skeleton, seed: int = 0, config: FitConfig = FitConfig(), progress=None) -> FitResult:
+def fit_cloud(cloud: Cloud, skeleton: Skeleton, seed: int = 0, config: FitConfig = FitConfig(),
+              progress=None) -> FitResult:
     """Convenience: :class:`Fitter` with an integer seed; returns NumPy-friendly results."""
     return Fitter(skeleton, config).run(cloud, jax.random.key(seed), progress)
