@@ -31,7 +31,8 @@ import sys
 import time
 import xml.etree.ElementTree as ET
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+if sys.platform.startswith("linux"):  # headless OpenGL; MuJoCo refuses "egl" at import elsewhere
+    os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
@@ -53,7 +54,19 @@ def load(path: str):
     from jaxpose.io.mjcf import compile_mjcf, pose_from_qpos, skeleton_from_model
 
     if path.lower().endswith(".urdf"):
-        m = mujoco.MjModel.from_xml_path(path)
+        # MuJoCo's URDF import fuses links on fixed joints into their parents, the root link into the
+        # world (where the background render would keep it): keep every link a body of its own
+        robot = ET.parse(path).getroot()
+        ext = robot.find("mujoco")
+        if ext is None:
+            ext = ET.SubElement(robot, "mujoco")
+        compiler = ext.find("compiler")
+        if compiler is None:
+            compiler = ET.SubElement(ext, "compiler")
+        compiler.set("fusestatic", "false")
+        compiler.set("strippath", "false")
+        compiler.set("meshdir", compiler.get("meshdir") or os.path.dirname(os.path.abspath(path)))
+        m = mujoco.MjModel.from_xml_string(ET.tostring(robot, encoding="unicode"))
         skel = jp.load_skeleton(path)
         child = {j.get("name"): j.find("child").get("link") for j in ET.parse(path).getroot().findall("joint")}
 
@@ -70,12 +83,13 @@ def load(path: str):
     return m, skel, lambda qpos: pose_from_qpos(skel, m, qpos)
 
 
-def random_qpos(m, rng, spread: float) -> np.ndarray:
+def random_qpos(m, rng, spread: float, root_joints: bool = True) -> np.ndarray:
     """Joint values around ``qpos0`` (clipped into range): hinges and slides normal with ``spread``
     x half their range (unlimited: half a turn, or the model's size), kept in range; balls a random
     turn of ``spread`` x 90 degrees in the mean.  The joints of the only top-level body (a free
     joint, a planar walker's root slides and hinge) stay: they are the root pose, and the camera
-    moves instead (a walker's root slid or tipped at random would sink into its floor)."""
+    moves instead (a walker's root slid or tipped at random would sink into its floor); with
+    ``root_joints=False`` (URDF files, whose root link has no joint) every joint moves."""
     import mujoco
 
     hinge, slide, ball = (int(t) for t in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE,
@@ -84,7 +98,7 @@ def random_qpos(m, rng, spread: float) -> np.ndarray:
     top = [b for b in range(1, m.nbody) if m.body_parentid[b] == 0]
     for j in range(m.njnt):
         a, t = int(m.jnt_qposadr[j]), int(m.jnt_type[j])
-        if len(top) == 1 and m.jnt_bodyid[j] == top[0]:
+        if root_joints and len(top) == 1 and m.jnt_bodyid[j] == top[0]:
             continue  # the root body's joints (a planar walker's rootx/rootz/rooty) are the root pose
         if t in (hinge, slide):
             if m.jnt_limited[j]:
@@ -101,10 +115,8 @@ def random_qpos(m, rng, spread: float) -> np.ndarray:
 
 
 def camera_view(m, d, rng, width: int, height: int):
-    """A free camera framing the model's geoms from a random orbit, and its frame and intrinsics.
-
-    Returns ``(mjvCamera, centre (3,), R (3, 3) world -> camera rows: x right, y down, z
-    forward, Intrinsics)``; the camera's centre is set by :func:`render_depth`'s scene."""
+    """A free camera framing the model's geoms from a random orbit: ``(mjvCamera, Intrinsics)``
+    (its centre and frame come from the rendered scene, :func:`render_depth`)."""
     import mujoco
 
     body_geoms = np.asarray(m.geom_bodyid) > 0
@@ -129,9 +141,14 @@ def render_depth(renderer, m, d, cam, hide_model: bool = False):
     import mujoco
 
     opt = mujoco.MjvOption()
+    opt.geomgroup[:] = 1  # every geom, as the importers model every geom (visual and collision groups)
+    opt.sitegroup[:] = 0
+    opt.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = 0
     saved = m.geom_group.copy()
-    if hide_model:  # a group MuJoCo's default option does not draw
-        m.geom_group[np.asarray(m.geom_bodyid) > 0] = 5
+    if hide_model:  # the world's geoms (floors) in a drawn group, the model's in one that is not
+        on_body = np.asarray(m.geom_bodyid) > 0
+        m.geom_group[~on_body] = 0
+        m.geom_group[on_body] = 5
         opt.geomgroup[5] = 0
     try:
         renderer.update_scene(d, camera=cam, scene_option=opt)
@@ -173,7 +190,7 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
     records = []
     for v in range(views):
         rng = np.random.default_rng([seed, v])
-        d.qpos[:] = random_qpos(m, rng, spread)
+        d.qpos[:] = random_qpos(m, rng, spread, root_joints=not path.lower().endswith(".urdf"))
         mujoco.mj_kinematics(m, d)
         cam, k = camera_view(m, d, rng, *size)
         depth, centre, R = render_depth(renderer, m, d, cam)
@@ -255,6 +272,8 @@ def gl_problem() -> str | None:
         import mujoco
     except ImportError:
         return "the 'mujoco' package is not installed (pip install 'jaxpose[mujoco]')"
+    except Exception as e:  # noqa: BLE001 - e.g. a MUJOCO_GL value this platform does not have
+        return f"MuJoCo does not import here ({e.__class__.__name__}: {' '.join(str(e).split())[:120]})"
     try:
         m = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom size='.1'/></worldbody></mujoco>")
         r = mujoco.Renderer(m, 8, 8)

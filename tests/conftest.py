@@ -1,6 +1,7 @@
 """Test-wide settings."""
 
 import os
+import sys
 
 # The command line keeps compiled programs on disk between runs; tests must not
 # depend on (or fill) a user's cache, so it is off here.  tests/test_cli.py turns
@@ -8,7 +9,8 @@ import os
 os.environ["JAXPOSE_CACHE_DIR"] = "0"
 # MuJoCo picks its OpenGL platform when it is imported; tests/test_mujoco_views.py renders
 # off screen (headless EGL), so ask for that before any test imports mujoco.
-os.environ.setdefault("MUJOCO_GL", "egl")
+if sys.platform.startswith("linux"):  # MuJoCo refuses MUJOCO_GL=egl (at import) elsewhere
+    os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 import pytest  # noqa: E402

@@ -41,7 +41,7 @@ def surface_distances(name, view_seed, size=(200, 150)):
     m, skel, to_pose = MV.load(os.path.join(FIXTURES, name))
     d = mujoco.MjData(m)
     rng = np.random.default_rng(view_seed)
-    d.qpos[:] = MV.random_qpos(m, rng, 0.3)
+    d.qpos[:] = MV.random_qpos(m, rng, 0.3, root_joints=not name.endswith(".urdf"))
     mujoco.mj_kinematics(m, d)
     cam, k = MV.camera_view(m, d, rng, *size)
     r = mujoco.Renderer(m, size[1], size[0])
