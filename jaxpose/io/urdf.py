@@ -223,7 +223,7 @@ def link_capsule(shapes: list[Shape]):
     meshes' surface (:func:`surface_capsule`).  An enclosing capsule is exact for a capsule and tight
     for a cylinder, but much fatter than most meshes (a robot arm's rounded links), and the objective
     scores the distance to the capsule's surface from outside and inside alike: MuJoCo renders of two
-    mesh arms, 4 views each, symmetric PCP 31% -> 44% and 36% -> 61%, MPJPE 67 -> 42 and 74 -> 36 mm
+    mesh arms, 4 views each, symmetric PCP 59% -> 66% and 36% -> 43%, median MPJPE 31 -> 25 and 57 -> 39 mm
     (docs/experiments.md)."""
     start, d, length, radius = enclosing_capsule(shapes)
     shapes = [s for s in shapes if len(s.centres)]
