@@ -33,8 +33,7 @@ def _seg_distance(P, a, b):
 
 
 def surface_distances(name, view_seed, size=(200, 150)):
-    """Signed distances (m) from every model pixel MuJoCo renders to jaxpose's nearest capsule surface,
-    and the name of that capsule's link."""
+    """Signed distances (m) from every model pixel MuJoCo renders to jaxpose's nearest capsule surface."""
     import mujoco
 
     from jaxpose.kinematics import forward_kinematics
@@ -60,25 +59,20 @@ def surface_distances(name, view_seed, size=(200, 150)):
     s = (np.asarray(links.start, np.float64) - centre) @ R.T
     e = (np.asarray(links.end, np.float64) - centre) @ R.T
     rad = np.asarray(links.radius, np.float64)
-    shown = [i for i in range(skel.num_links) if rad[i] > 0]
-    D = np.array([_seg_distance(P, s[i], e[i]) - rad[i] for i in shown])
-    return D.min(0), np.array([skel.link_names[shown[k]] for k in D.argmin(0)])
+    return np.min([_seg_distance(P, s[i], e[i]) - rad[i] for i in range(skel.num_links) if rad[i] > 0], axis=0)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_capsule_model_pixels_lie_on_jaxpose_capsules(seed):
     """The ant is made of capsules and a sphere: MuJoCo's pixels lie on jaxpose's surfaces."""
-    dist, _ = surface_distances("ant.xml", seed)
+    dist = surface_distances("ant.xml", seed)
     assert len(dist) > 500
     assert np.median(np.abs(dist)) < 2e-3 and np.percentile(np.abs(dist), 99) < 1e-2
 
 
-def test_cylinders_lie_inside_their_capsules_and_a_box_about_its_fitted_one():
-    """The gripper (prismatic joints moved): its cylinders lie inside their enclosing capsules;
-    its column, a box alone, has the capsule fitted to its faces, which it straddles."""
-    dist, link = surface_distances("gripper.urdf", 2)
-    assert len(dist) > 300 and np.percentile(dist, 99) < 0.01  # on or near a capsule everywhere
-    table = dist[link == "turntable"]  # a flat cylinder: strictly inside its enclosing capsule
-    assert len(table) > 30 and np.percentile(table, 90) < 2e-3 and np.median(table) < -0.01
-    box = dist[link == "column"]  # a box alone: its capsule is fitted, some pixels in, some out
-    assert len(box) > 50 and np.median(np.abs(box)) < 0.01 and box.min() < -2e-3 and box.max() > 2e-3
+def test_boxes_and_cylinders_lie_inside_their_enclosing_capsules():
+    """The gripper's boxes and cylinders (prismatic joints moved) lie inside jaxpose's capsules."""
+    dist = surface_distances("gripper.urdf", 2)
+    assert len(dist) > 300
+    assert np.percentile(dist, 99) < 2e-3  # inside or on the surface (up to the depth buffer's precision)
+    assert np.median(dist) < -1e-3  # and mostly strictly inside: the capsules enclose, not fit, these shapes

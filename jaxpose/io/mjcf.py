@@ -53,10 +53,10 @@ the body's link gets the one capsule that encloses all of them:
 * ``cylinder``: the capsule of the same axis, radius and segment (encloses it);
 * ``ellipsoid``: along its longest axis with the larger other radius (encloses it);
 * ``box``: enclosing its eight corners, normally along its longest side with the
-  half-diagonal of the two others as radius; a body of boxes and meshes only gets the
-  capsule fitted to their surface instead (:func:`~jaxpose.io.urdf.link_capsule`);
-* ``mesh``: enclosing every vertex of the compiled mesh (MuJoCo reads the file), or
-  fitted to them in a body of meshes and boxes only (16 vertices or more).
+  half-diagonal of the two others as radius;
+* ``mesh``: enclosing every vertex of the compiled mesh (MuJoCo reads the file); a body
+  of meshes only (16 vertices or more) gets the capsule fitted to their vertices instead
+  (:func:`~jaxpose.io.urdf.link_capsule`).
 """
 
 from __future__ import annotations

@@ -28,17 +28,15 @@ Geometry.  ``<collision>`` elements are used when a link has any, otherwise its
 * ``cylinder``: the capsule along its axis with the same radius and segment length
   (it encloses the cylinder; the caps stick out by one radius);
 * ``capsule`` (a common extension): exact;
-* ``box``: in a link with other shapes than boxes and meshes, a capsule along its longest
-  axis with the half-diagonal of the two other sides as radius and the full long side
-  as segment (it encloses the box); in a link of boxes and meshes only, the capsule
-  fitted to points on the faces (:func:`surface_capsule`);
+* ``box``: a capsule along its longest axis with the half-diagonal of the two other
+  sides as radius and the full long side as segment (it encloses the box);
 * ``mesh``: a Wavefront ``.obj`` or an STL (binary or ASCII) file, found beside the
   URDF (a relative path, ``file://``, or ``package://PKG/...`` looked up as ``PKG/...``
   and as ``...`` in the URDF's folder and its parents), is read: its vertices, scaled
   by ``scale`` and placed by the geometry's origin, are enclosed like the other
-  shapes; a link made of meshes (and boxes) only then gets the capsule fitted to those
-  vertices (:func:`surface_capsule`; meshes under 16 vertices excepted), not the
-  enclosing one, which is much fatter than most meshes.  A mesh that cannot be found or is of another format (e.g. COLLADA
+  shapes; a link made of meshes only (with 16 vertices or more) then gets the capsule
+  fitted to those vertices (:func:`surface_capsule`), not the enclosing one, which
+  is much fatter than most meshes.  A mesh that cannot be found or is of another format (e.g. COLLADA
   ``.dae``) is stood in for by a ball of radius :data:`DEFAULT_MESH_RADIUS` times the
   largest ``scale`` factor at the geometry's origin; give the link a ``<collision>``
   primitive for a better fit.  A mesh file that is found but unreadable is an error.
@@ -102,35 +100,13 @@ def capsule_shape(pos, R, radius, half_length) -> Shape:
     return Shape([pos - half_length * z, pos + half_length * z], [radius, radius], [z])
 
 
-BOX_SURFACE_POINTS = 600  # about this many points on a box's faces, for its fitted capsule
-
-
-def box_surface(pos, R, half_sizes, n: int = BOX_SURFACE_POINTS) -> np.ndarray:
-    """Points on a box's six faces (a square grid on each, about ``n`` in all, spread by area)."""
-    R, pos, h = np.asarray(R, float), np.asarray(pos, float), np.abs(np.asarray(half_sizes, float))
-    areas = np.array([h[1] * h[2], h[0] * h[2], h[0] * h[1]])
-    share = areas / areas.sum() if areas.sum() > 0 else np.full(3, 1 / 3)
-    pts = []
-    for ax in range(3):
-        u_ax, v_ax = [k for k in range(3) if k != ax]
-        m = max(4, int(np.ceil(np.sqrt(n * share[ax] / 2))))
-        g = (np.arange(m) + 0.5) / m * 2 - 1
-        u, v = (a.ravel() for a in np.meshgrid(g * h[u_ax], g * h[v_ax]))
-        for sign in (-1.0, 1.0):
-            p = np.zeros((len(u), 3))
-            p[:, ax], p[:, u_ax], p[:, v_ax] = sign * h[ax], u, v
-            pts.append(p)
-    return pos + np.concatenate(pts) @ R.T
-
-
 def box_shape(pos, R, half_sizes) -> Shape:
-    """The eight corners of a box (half sizes along the local axes of frame ``(R, pos)``), and
-    points on its faces for :func:`link_capsule`."""
+    """The eight corners of a box (half sizes along the local axes of frame ``(R, pos)``)."""
     R, pos, h = np.asarray(R, float), np.asarray(pos, float), np.abs(np.asarray(half_sizes, float))
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
     corners = pos + (signs * h) @ R.T
     order = np.argsort(-h, kind="stable")
-    return Shape(corners, 0.0, R[:, order].T, surface=box_surface(pos, R, h))
+    return Shape(corners, 0.0, R[:, order].T)
 
 
 def ellipsoid_shape(pos, R, radii) -> Shape:
@@ -231,14 +207,9 @@ def surface_capsule(points, start, d, length, radius):
     P = np.asarray(points, float)
     if len(P) > MAX_SURFACE_POINTS:
         P = P[np.linspace(0, len(P) - 1, MAX_SURFACE_POINTS).astype(int)]
-    a0, b0 = start, start + length * d
-    x0 = np.concatenate([a0, b0, [radius]])
-    # the ends stay within a radius of the enclosing segment's box: points on a flat end face are as
-    # close to a segment running on through it, so without bounds the segment drifts out of the shape
-    lo = np.concatenate([np.minimum(a0, b0) - radius] * 2 + [[0.0]])
-    hi = np.concatenate([np.maximum(a0, b0) + radius] * 2 + [[1.05 * radius]])
-    sol = least_squares(lambda x: _segment_distances(P, x[:3], x[3:6]) - x[6], x0, bounds=(lo, hi),
-                        loss="soft_l1", f_scale=max(0.1 * radius, 1e-4), max_nfev=300)
+    x0 = np.concatenate([start, start + length * d, [radius]])
+    sol = least_squares(lambda x: _segment_distances(P, x[:3], x[3:6]) - x[6], x0, loss="soft_l1",
+                        f_scale=max(0.1 * radius, 1e-4), max_nfev=300)
     a, b, r = sol.x[:3], sol.x[3:6], float(sol.x[6])
     L = float(np.linalg.norm(b - a))
     if not (sol.success and 0.1 * radius < r <= 1.05 * radius and L <= length + 2 * radius):
@@ -248,13 +219,12 @@ def surface_capsule(points, start, d, length, radius):
 
 def link_capsule(shapes: list[Shape]):
     """A link's capsule ``(seg_start, seg_dir, length, radius)``: the one enclosing every shape
-    (:func:`enclosing_capsule`), except for a link made of meshes and boxes only, whose capsule is
-    fitted to their surface (:func:`surface_capsule`).  An enclosing capsule is exact for a capsule
-    and tight for a cylinder, but much fatter than most meshes (a robot arm's rounded links) and
-    than a flat box, and the objective scores the distance to the capsule's surface from outside and
-    inside alike.  MuJoCo renders, 4 views each (docs/experiments.md): two mesh arms, symmetric PCP
-    59% -> 66% and 36% -> 43%, median MPJPE 31 -> 25 and 57 -> 39 mm; boxes fitted as well: the
-    test fixtures' box arm and box-footed walker, the same PCP at MPJPE 12 -> 8 and 8 -> 4 mm."""
+    (:func:`enclosing_capsule`), except for a link made of meshes only, whose capsule is fitted to the
+    meshes' surface (:func:`surface_capsule`).  An enclosing capsule is exact for a capsule and tight
+    for a cylinder, but much fatter than most meshes (a robot arm's rounded links), and the objective
+    scores the distance to the capsule's surface from outside and inside alike: MuJoCo renders of two
+    mesh arms, 4 views each, symmetric PCP 59% -> 66% and 36% -> 43%, median MPJPE 31 -> 25 and 57 -> 39 mm
+    (docs/experiments.md)."""
     start, d, length, radius = enclosing_capsule(shapes)
     shapes = [s for s in shapes if len(s.centres)]
     if not shapes or any(s.surface is None for s in shapes) or radius <= 0:
