@@ -24,7 +24,8 @@ from jaxpose.search.fit import FitConfig
 # Everything else comes from FitConfig()'s defaults (and --population / --generations).
 VARIANTS = {
     "ga": {"algorithm": "ga"},
-    "ga-paper-objective": {"algorithm": "ga", "objective": {"free_space_weight": 0.0, "sigma_factor": 1.0}},
+    "ga-paper-objective": {"algorithm": "ga", "objective": {"free_space_weight": 0.0, "collision_weight": 0.0,
+                                                             "sigma_factor": 1.0}},
     "hc": {"algorithm": "hc"},
     "ga-coarse": {"algorithm": "ga", "coarse_points": 256},
 }

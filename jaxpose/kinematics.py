@@ -13,7 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .skeleton import Pose, Skeleton, axis_angle_matrix, rpy_matrix
+from .objective import CollisionPairs, segment_distance
+from .skeleton import Pose, Skeleton, axis_angle_matrix, rest_pose, rpy_matrix
 
 
 class Links(NamedTuple):
@@ -121,3 +122,22 @@ def capsules(skel: Skeleton, pose: Pose) -> tuple[jax.Array, jax.Array, jax.Arra
     """Shorthand: ``(start, end, radius)`` of every capsule."""
     links = forward_kinematics(skel, pose)
     return links.start, links.end, links.radius
+
+
+def collision_pairs(skel: Skeleton, margin: float) -> CollisionPairs:
+    """The capsule pairs of the collision term (:func:`jaxpose.objective.collision_cost`).
+
+    Every pair of links but a link and its parent (they meet at the joint), each with
+    ``rho = min(1, d_rest / (margin (r_i + r_j)))``, ``d_rest`` the distance of their
+    axes in the rest pose (the skeleton's lengths, scale 1): pairs that overlap there
+    keep the clearance they have.  Works on a traced skeleton (``rho`` is computed).
+    """
+    L = skel.num_links
+    par = skel.parents
+    ii, jj = zip(*[(i, j) for i in range(L) for j in range(i + 1, L) if par[j] != i and par[i] != j]) or ((), ())
+    i, j = np.asarray(ii, np.int32), np.asarray(jj, np.int32)
+    links = forward_kinematics(skel, rest_pose(skel))
+    d = segment_distance(links.start[i], links.end[i], links.start[j], links.end[j])
+    clearance = margin * (links.radius[i] + links.radius[j])
+    rho = jnp.where(clearance > 0, jnp.minimum(1.0, d / jnp.where(clearance > 0, clearance, 1.0)), 0.0)
+    return CollisionPairs(i, j, rho)

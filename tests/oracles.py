@@ -186,3 +186,45 @@ def brute_cost(points, weights, start, end, radius, sigma=None):
     s = spread(pts, w) if sigma is None else float(sigma)
     d = surface_distances(pts, start, end, radius)
     return float((w * np.log1p(d / s)).sum() / w.sum())
+
+
+def segment_segment_distance(p1, q1, p2, q2, iters: int = 60):
+    """Distance between segments ``p1q1`` and ``p2q2`` by ternary search.
+
+    The distance from ``p1 + s (q1 - p1)`` to a segment is convex in ``s``, so its
+    minimum over ``s`` in [0, 1] is found by shrinking the bracket (no closed form).
+    """
+    p1, q1 = np.asarray(p1, float), np.asarray(q1, float)
+
+    def f(s):
+        return point_segment_distance(p1 + s * (q1 - p1), p2, q2)
+
+    lo, hi = 0.0, 1.0
+    for _ in range(iters):
+        m1, m2 = lo + (hi - lo) / 3, hi - (hi - lo) / 3
+        if f(m1) <= f(m2):
+            hi = m2
+        else:
+            lo = m1
+    return min(f(0.0), f(1.0), f((lo + hi) / 2))
+
+
+def collision_penalty(start, end, radius, parents, rest_start, rest_end, rest_radius, margin, sigma):
+    """The collision term by double loop over link pairs (``jaxpose/objective.py`` docstring):
+    every pair but a link and its parent; the clearance ``rho margin (r_i + r_j)`` with
+    ``rho = min(1, d_rest / (margin (R_i + R_j)))`` from the rest pose's distance and
+    radii ``R`` (0 for two lines)."""
+    total = 0.0
+    L = len(start)
+    for i in range(L):
+        for j in range(i + 1, L):
+            if parents[j] == i or parents[i] == j:
+                continue
+            c_rest = margin * (rest_radius[i] + rest_radius[j])
+            if c_rest <= 0:
+                continue
+            d_rest = segment_segment_distance(rest_start[i], rest_end[i], rest_start[j], rest_end[j])
+            rho = min(1.0, d_rest / c_rest)
+            d = segment_segment_distance(start[i], end[i], start[j], end[j])
+            total += np.log1p(max(0.0, rho * margin * (radius[i] + radius[j]) - d) / sigma)
+    return float(total)

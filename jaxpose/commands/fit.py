@@ -61,6 +61,9 @@ def register(sub) -> None:
                         f"default {ObjectiveConfig.sigma_factor})")
     p.add_argument("--free-space-weight", type=float, default=ObjectiveConfig.free_space_weight,
                    help="weight of the free-space term (0: the paper's objective alone)")
+    p.add_argument("--collision-weight", type=float, default=ObjectiveConfig.collision_weight,
+                   help="weight of the term that keeps links from passing through each other "
+                        f"(0: off; default {ObjectiveConfig.collision_weight})")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="result JSON (default result.json; one input only)")
     p.add_argument("--plot", help="PNG with the fitted skeleton drawn over the depth image, or over a "
@@ -105,6 +108,8 @@ def config_from_args(args) -> FitConfig:
         raise ConfigError(f"--sigma-factor must be > 0, got {args.sigma_factor}")
     if _finite(args, "free_space_weight", "--free-space-weight") < 0:
         raise ConfigError(f"--free-space-weight must be >= 0, got {args.free_space_weight}")
+    if _finite(args, "collision_weight", "--collision-weight") < 0:
+        raise ConfigError(f"--collision-weight must be >= 0, got {args.collision_weight}")
     near, far = _finite(args, "near", "--near"), _finite(args, "far", "--far")
     if not 0 <= near < far:
         raise ConfigError(f"--near {near} / --far {far}: need 0 <= near < far (metres)")
@@ -126,7 +131,8 @@ def config_from_args(args) -> FitConfig:
         islands=args.islands,
         coarse_points=args.coarse_points,
         tie_lengths=args.tie_lengths,
-        objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor),
+        objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor,
+                                  collision_weight=args.collision_weight),
     )
     if args.no_refine:
         cfg = dataclasses.replace(cfg, memetic_every=0, final_refine_steps=0)

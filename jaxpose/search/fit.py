@@ -30,7 +30,7 @@ from evosax.algorithms.population_based.base import PopulationBasedAlgorithm
 
 from .._xla_flags import fast_compile_options
 from ..errors import ConfigError
-from ..kinematics import Links, forward_kinematics
+from ..kinematics import Links, collision_pairs, forward_kinematics
 from ..objective import (Cloud, ObjectiveConfig, Observation, cloud_centre, cloud_spread, num_blocks, observe,
                          population_cost)
 from ..skeleton import (Bounds, Pose, Skeleton, axis_angle_matrix, decode, encode, genome_bounds, genome_layout,
@@ -206,6 +206,12 @@ class FitConfig:
             raise ConfigError(f"elite_ratio must lie in (0, 1], got {self.elite_ratio}")
         if self.std_init <= 0 or self.std_final <= 0:
             raise ConfigError("std_init and std_final must be positive")
+        obj = self.objective
+        if not (obj.free_space_weight >= 0 and obj.collision_weight >= 0):
+            raise ConfigError(f"objective weights must be >= 0, got free_space_weight {obj.free_space_weight}, "
+                              f"collision_weight {obj.collision_weight}")
+        if not 0 < obj.collision_margin <= 2:
+            raise ConfigError(f"objective.collision_margin must lie in (0, 2], got {obj.collision_margin}")
         for name in ("memetic_every", "memetic_top", "memetic_steps", "final_refine_top", "final_refine_steps"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -293,10 +299,12 @@ def _make_algorithm(skel: Skeleton, config: FitConfig):
 def _population_cost_fn(skel: Skeleton, obs: Observation, bounds: Bounds, config: FitConfig):
     """``cost(genomes (P, D), blocks=None) -> (P,)`` (``blocks``: see :func:`data_cost`)."""
 
+    pairs = collision_pairs(skel, config.objective.collision_margin) if config.objective.collision_weight > 0 else None
+
     def cost(genomes, blocks=None):
         poses = jax.vmap(partial(decode, skel, bounds))(genomes)
         links = jax.vmap(partial(forward_kinematics, skel))(poses)
-        c = population_cost(obs, links.start, links.end, links.radius, config.objective, blocks)
+        c = population_cost(obs, links.start, links.end, links.radius, config.objective, blocks, pairs)
         return jnp.where(jnp.isfinite(c), c, jnp.inf)
 
     return cost
