@@ -4,7 +4,7 @@ The pure functional core (usable inside your own ``jax.jit``/``jax.vmap``):
 
 - skeletons: :class:`Skeleton`, :class:`Pose`, :func:`rest_pose`, :func:`genome_layout`,
   :func:`genome_bounds`, :func:`encode`, :func:`decode`
-- kinematics: :func:`forward_kinematics` -> :class:`Links`
+- kinematics: :func:`forward_kinematics` -> :class:`Links`, :func:`collision_pairs`
 - objective: :class:`Cloud`, :class:`ObjectiveConfig`, :func:`paper_cost`, :func:`data_cost`,
   :func:`population_cost`, :func:`observe`, :func:`cloud_spread`
 - search: :func:`fit` (pure), :func:`fit_cloud`, :class:`Fitter`, :class:`FitConfig`, :class:`FitResult`,
@@ -28,7 +28,7 @@ from .errors import ConfigError, DepthError, IntrinsicsError, JaxposeError, Skel
 from .io.cloud_file import load_points, to_sensor_frame
 from .io.depth_file import load_depth, parse_intrinsics
 from .io.skeleton_file import load_skeleton, shipped_skeletons
-from .kinematics import Links, forward_kinematics
+from .kinematics import Links, collision_pairs, forward_kinematics
 from .objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, observe, paper_cost, population_cost
 from .pipeline import DepthOptions, fit_depth_file
 from .search import BoundedHillClimbing, BranchSwapGA, FitConfig, Fitter, FitResult, fit, fit_cloud
@@ -37,7 +37,7 @@ from .skeleton import Pose, Skeleton, decode, encode, genome_bounds, genome_layo
 __all__ = [
     "KINECT_V1", "BoundedHillClimbing", "BranchSwapGA", "Cloud", "ConfigError", "DepthError", "DepthOptions",
     "FitConfig", "FitResult", "Fitter", "Intrinsics", "IntrinsicsError", "JaxposeError", "Links",
-    "ObjectiveConfig", "Pose", "Skeleton", "SkeletonError", "cloud_spread", "data_cost", "decode",
+    "ObjectiveConfig", "Pose", "Skeleton", "SkeletonError", "cloud_spread", "collision_pairs", "data_cost", "decode",
     "depth_to_cloud", "encode", "fit", "fit_cloud", "fit_depth_file", "forward_kinematics", "genome_bounds",
     "genome_layout", "load_depth", "load_points", "load_skeleton", "observe", "paper_cost", "parse_intrinsics",
     "points_to_cloud", "population_cost", "project", "rest_pose", "sensor_points_to_cloud", "shipped_skeletons",
