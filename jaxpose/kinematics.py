@@ -134,8 +134,8 @@ def collision_pairs(skel: Skeleton, margin: float) -> CollisionPairs:
     """
     L = skel.num_links
     par = skel.parents
-    ii, jj = zip(*[(i, j) for i in range(L) for j in range(i + 1, L) if par[j] != i and par[i] != j]) or ((), ())
-    i, j = np.asarray(ii, np.int32), np.asarray(jj, np.int32)
+    ij = np.array([(i, j) for i in range(L) for j in range(i + 1, L) if par[j] != i and par[i] != j], np.int32)
+    i, j = ij.reshape(-1, 2).T
     links = forward_kinematics(skel, rest_pose(skel))
     d = segment_distance(links.start[i], links.end[i], links.start[j], links.end[j])
     clearance = margin * (links.radius[i] + links.radius[j])

@@ -412,7 +412,7 @@ class CollisionPairs(NamedTuple):
 def collision_cost(pairs: CollisionPairs, sigma, start, end, radius, margin: float) -> jax.Array:
     """Collision penalty ``(P,)`` of posed capsules ``start, end (P, L, 3)``, ``radius (P, L)``
     (see the module docstring)."""
-    if len(pairs.i) == 0:
+    if len(pairs.i) == 0:  # (population_cost leaves the term out then)
         return jnp.zeros(start.shape[:1], start.dtype)
     # link-major coordinates (3, L, P): the pairs' gathers pick whole rows
     s, e = jnp.transpose(start, (2, 1, 0)), jnp.transpose(end, (2, 1, 0))
@@ -454,7 +454,7 @@ def population_cost(obs: Observation, start, end, radius, config: ObjectiveConfi
         cost = cost + config.free_space_weight * free_space_cost(
             obs.fmap, obs.sigma, start, end, config.free_space_samples, radius
         )
-    if config.collision_weight > 0 and pairs is not None:
+    if config.collision_weight > 0 and pairs is not None and len(pairs.i):
         cost = cost + config.collision_weight * collision_cost(pairs, obs.sigma, start, end, radius,
                                                                config.collision_margin)
     return cost

@@ -145,3 +145,17 @@ def test_population_cost_adds_the_weighted_collision_term_only_with_pairs():
     np.testing.assert_allclose(c1, c0 + 0.3 * coll, rtol=1e-5)
     np.testing.assert_allclose(c2, c0, rtol=0)
     assert coll.max() > 0
+
+
+def test_skeletons_without_pairs_cost_nothing():
+    """One link, or a link and its child: nothing to check (and nothing fails)."""
+    from jaxpose.skeleton import LinkSpec, build_skeleton
+
+    for specs in ([LinkSpec("a", None, length=0.3, radius=0.05)],
+                  [LinkSpec("a", None, length=0.3, radius=0.05), LinkSpec("b", "a", length=0.3, radius=0.05)]):
+        skel = build_skeleton("no_pairs", specs)
+        pairs = collision_pairs(skel, 0.8)
+        assert len(pairs.i) == len(pairs.j) == 0
+        lk = forward_kinematics(skel, rest_pose(skel))
+        c = collision_cost(pairs, 0.1, lk.start[None], lk.end[None], lk.radius[None], 0.8)
+        assert c.shape == (1,) and float(c[0]) == 0.0

@@ -137,8 +137,12 @@ def test_fast_compile_options_change_no_number(skeleton):
     got = fit_module._refine_jit(skeleton, cfg, st, 3, np.int32(4))
     want = plain_refine(skeleton, cfg, st, 3, np.int32(4))
     np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(want[0]))  # the same candidates
-    for a, b in zip(got[1:], want[1:]):
-        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
+    # the refined costs agree to round-off; the genomes only to a few Adam steps: along a
+    # direction the cost hardly depends on, Adam's normalised step turns a round-off-sized
+    # gradient into a step of the learning rate, either way (0.018 after 4 steps was seen
+    # on one machine, 0 on another)
+    np.testing.assert_allclose(np.asarray(got[2]), np.asarray(want[2]), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(got[1]), np.asarray(want[1]), rtol=0, atol=4 * cfg.learning_rate)
     before = np.take_along_axis(np.asarray(st.algo_state.population), np.asarray(got[0])[..., None], 1)
     assert not np.allclose(np.asarray(got[1]), before)  # the refinement moved the candidates
     assert fast_compile_options() is None or fit_module._once == fast_compile_options()
