@@ -29,11 +29,14 @@ Neither term above stops a limb the camera cannot see from lying inside the trun
 where it costs nothing.  A body's parts do not interpenetrate, so for pairs of
 capsules ``(i, j)`` the term charges ``sum_k ln(1 + max(0, c_k - d_k) / sigma)``,
 ``d_k`` the distance between the two axes and ``c_k = rho_k collision_margin
-(r_i + r_j)`` the clearance they must keep.  ``rho_k`` in ``[0, 1]`` is the pair's
-distance in the rest pose over its clearance (at most 1): a pair that overlaps in
-the rest pose (a link and its parent, two links on one joint, parts designed to
-overlap) only has to stay as far apart as it is there
-(:func:`jaxpose.kinematics.collision_pairs`).
+(r_i + r_j)`` the clearance they must keep.  The pairs are every two links but a
+link and its parent.  ``rho_k`` in ``[0, 1]`` is the pair's distance in the rest
+pose over its clearance (at most 1): a pair that overlaps in the rest pose (a
+forearm resting on a thigh, parts designed to overlap) only has to stay as far
+apart as it is there, and two links that start at one joint (``rho = 0``) are
+never charged (:func:`jaxpose.kinematics.collision_pairs`).  The rest pose is
+taken at the skeleton's own lengths (see the README for what that means when
+lengths are searched).
 """
 
 from __future__ import annotations
@@ -378,7 +381,10 @@ def segment_distance(p1, q1, p2, q2, axis: int = -1) -> jax.Array:
     5.1.9), written branch-free; a segment of length zero is a point.  Computed on
     separate coordinate arrays (a reduction over a minor axis of 3 is slow on CPU).
     """
-    p1, q1, p2, q2 = (jnp.moveaxis(jnp.asarray(v), axis, 0) for v in (p1, q1, p2, q2))
+    p1, q1, p2, q2 = jnp.broadcast_arrays(p1, q1, p2, q2)
+    if p1.shape[axis] != 3:
+        raise ValueError(f"segment_distance: expected 3 coordinates along axis {axis}, got shape {p1.shape}")
+    p1, q1, p2, q2 = (jnp.moveaxis(v, axis, 0) for v in (p1, q1, p2, q2))
     d1, d2, r = q1 - p1, q2 - p2, p1 - p2
 
     def dot(u, v):

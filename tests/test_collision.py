@@ -62,10 +62,23 @@ def test_segment_distance_matches_ternary_search():
 def test_segment_distance_gradient_is_finite_where_segments_meet():
     x, y = np.eye(3)[:2]
     grad = jax.grad(lambda a: segment_distance(a, a + f32(x), f32(-y), f32(y)))
-    for a in ([-0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.2, 0.0]):  # crossing, end on the other, parallel miss
+    for a in ([-0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.2, 0.0]):  # crossing, end on the other, beside it
         assert np.all(np.isfinite(np.asarray(grad(f32(a)))))
     g = grad(f32([-0.5, 0.0, 0.5]))  # 0.5 above the crossing: d/da = the unit normal
     np.testing.assert_allclose(np.asarray(g), [0, 0, 1], atol=1e-5)
+
+
+def test_segment_distance_broadcasts_before_picking_coordinates():
+    rng = np.random.default_rng(2)
+    p1, q1 = rng.normal(0, 1, (2, 5, 3))
+    p2, q2 = rng.normal(0, 1, (2, 3))  # one segment against five
+    want = np.array([segment_segment_distance(a, b, p2, q2) for a, b in zip(p1, q1)])
+    got = seg_jit(f32(p1), f32(q1), f32(p2), f32(q2))
+    np.testing.assert_allclose(np.asarray(got), want, atol=2e-6, rtol=1e-5)
+    got0 = segment_distance(f32(p1.T), f32(q1.T), f32(p2[:, None]), f32(q2[:, None]), axis=0)  # coordinates first
+    np.testing.assert_allclose(np.asarray(got0), want, atol=2e-6, rtol=1e-5)
+    with pytest.raises(ValueError, match="3 coordinates"):
+        segment_distance(jnp.zeros(4), jnp.ones(4), jnp.zeros(4), jnp.ones(4))
 
 
 def raw_links(name):
