@@ -437,16 +437,16 @@ def collision_cost(pairs: CollisionPairs, sigma, start, end, radius, margin: flo
     # link-major coordinates (3, L, P): the pairs' gathers pick whole rows
     s, e = jnp.transpose(start, (2, 1, 0)), jnp.transpose(end, (2, 1, 0))
     r = jnp.broadcast_to(jnp.asarray(radius, start.dtype), start.shape[:-1]).T
-    penalty = _pair_penalty(pairs.i, pairs.j, start.shape[1])
+    penalty = _pair_penalty(pairs.i, pairs.j, start.shape[1], start.dtype)
     return penalty(s, e, r, jnp.asarray(pairs.rho, start.dtype), jnp.asarray(sigma, start.dtype),
                    jnp.asarray(margin, start.dtype))
 
 
-def _pair_penalty(i, j, L: int):
+def _pair_penalty(i, j, L: int, dtype):
     """``penalty(s, e (3, L, P), r (L, P), rho (K,), sigma, margin) -> (P,)`` for the
     pairs ``i, j (K,)`` (static or traced)."""
-    to_i = (jnp.arange(L)[:, None] == i[None, :]).astype(jnp.float32)  # (L, K): pair k -> link i[k]
-    to_j = (jnp.arange(L)[:, None] == j[None, :]).astype(jnp.float32)
+    to_i = (jnp.arange(L)[:, None] == i[None, :]).astype(dtype)  # (L, K): pair k -> link i[k]
+    to_j = (jnp.arange(L)[:, None] == j[None, :]).astype(dtype)
 
     def forward(s, e, r, rho, sigma, margin):
         d, u, v, diff = _closest_points(s[:, i], e[:, i], s[:, j], e[:, j])  # (K, P), (3, K, P)
