@@ -50,9 +50,7 @@ import resource
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
-from functools import partial
 
 import numpy as np
 
