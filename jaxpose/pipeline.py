@@ -11,7 +11,7 @@ import numpy as np
 from .camera import Intrinsics, cloud_view, depth_to_cloud, sensor_points_to_cloud
 from .errors import ConfigError, DepthError, InputWarning
 from .io.cloud_file import is_cloud_file, load_points, parse_viewpoint, to_sensor_frame
-from .io.depth_file import load_depth, parse_intrinsics
+from .io.depth_file import load_depth, parse_intrinsics, read_depth
 from .io.fit_result import file_sha256, result_document
 from .io.skeleton_file import load_skeleton, resolve_skeleton_path
 from .objective import Cloud, cloud_spread
@@ -96,8 +96,13 @@ class FitOutput:
 
 def load_observation(depth_path: str, options: DepthOptions = DepthOptions()):
     """Read and validate a depth file (and background); return ``(depth, intrinsics, cloud)``."""
+    return _read_observation(depth_path, options)[:3]
+
+
+def _read_observation(depth_path: str, options: DepthOptions):
+    """:func:`load_observation`, and whether the depth scale was applied (integer pixels)."""
     options.validate()
-    depth = load_depth(depth_path, options.depth_scale)
+    depth, scaled = read_depth(depth_path, options.depth_scale)
     k = parse_intrinsics(options.intrinsics, depth.shape, image=str(depth_path))
     background = None
     if options.background:
@@ -115,7 +120,7 @@ def load_observation(depth_path: str, options: DepthOptions = DepthOptions()):
         background_tolerance=options.background_tolerance, source=depth_path,
         remove_planes=options.remove_planes, plane_tolerance=options.plane_tolerance,
     )
-    return depth, k, cloud
+    return depth, k, cloud, scaled
 
 
 def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions()):
@@ -156,15 +161,16 @@ def check_input(path: str, options: DepthOptions = DepthOptions()) -> None:
         load_observation(path, options)
 
 
-def _depth_record(depth_path: str, options: DepthOptions, k: Intrinsics, cloud: Cloud) -> dict:
-    """What the result file records about a depth-image input."""
+def _depth_record(depth_path: str, options: DepthOptions, k: Intrinsics, cloud: Cloud, scaled: bool) -> dict:
+    """What the result file records about a depth-image input (``depth_scale``: ``None``
+    when the pixels are metres already and the scale was not applied)."""
     return {
         "depth": os.path.basename(depth_path),
         "depth_sha256": file_sha256(depth_path),
         "background": os.path.basename(options.background) if options.background else None,
         "background_sha256": file_sha256(options.background),
         "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height},
-        "depth_scale": options.depth_scale,
+        "depth_scale": options.depth_scale if scaled else None,
         **_sampling_record(options, cloud),
     }
 
@@ -183,6 +189,15 @@ def _sampling_record(options: DepthOptions, cloud: Cloud) -> dict:
 
 
 SCALE_MARGIN = 1.5  # how far outside the skeleton's scale range a cloud's size is only warned about
+
+
+def unused_depth_scale(options: DepthOptions, scaled: bool, source: str) -> str | None:
+    """A warning when a depth scale other than the default was given for an image whose
+    pixels are floats (metres already, so the scale is not applied); ``None`` otherwise."""
+    if scaled or options.depth_scale == DepthOptions.depth_scale:
+        return None
+    return (f"{source}: the depth scale {options.depth_scale:g} was not applied: the image stores float "
+            "depths, read as metres (the scale converts integer pixels, as in a 16-bit PNG)")
 
 
 def scale_warning(skel: Skeleton, cloud: Cloud, source: str) -> str | None:
@@ -240,9 +255,11 @@ def fit_depth_file(
         depth, k, cloud, inputs = load_cloud_observation(depth_path, options)
         frame = "sensor (the cloud's viewpoint; x right, y down, z forward), metres"
     else:
-        depth, k, cloud = load_observation(depth_path, options)
-        inputs, frame = _depth_record(depth_path, options, k, cloud), None
-    notes = [w for w in (scale_warning(skel, cloud, str(depth_path)),) if w]
+        depth, k, cloud, scaled = _read_observation(depth_path, options)
+        inputs, frame = _depth_record(depth_path, options, k, cloud, scaled), None
+    notes = [w for w in (scale_warning(skel, cloud, str(depth_path)),
+                         None if is_cloud_file(depth_path) else unused_depth_scale(options, scaled, str(depth_path)))
+             if w]
     for w in notes:
         warnings.warn(w, InputWarning, stacklevel=2)
     result = fit_cloud(cloud, skel, seed, config, progress)

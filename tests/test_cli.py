@@ -207,6 +207,23 @@ def test_a_cloud_in_the_wrong_unit_is_fitted_with_a_warning(ga_result, scene, tm
     assert doc["params"]["scale"] > 1.9  # near the range's edge (2), as the warning says
 
 
+def test_a_depth_scale_for_float_pixels_is_not_applied_and_said_so(ga_result, scene, tmp_path, capsys):
+    """Float pixels are metres: ``--depth-scale`` leaves them alone, the command says so in
+    one warning line, and the result records no scale (the PNG's fit records 0.001)."""
+    np.save(tmp_path / "metres.npy", load_depth(scene / "depth.png"))
+    out = tmp_path / "float.json"
+    _, err = _run(capsys, "fit", tmp_path / "metres.npy", "--intrinsics", scene / "truth.json", "--seed", "7",
+                  "--depth-scale", "0.01", "--out", out, *FIT)
+    lines = [line for line in err.splitlines() if line]
+    assert lines == [f"jaxpose: warning: {tmp_path / 'metres.npy'}: the depth scale 0.01 was not applied: the image "
+                     "stores float depths, read as metres (the scale converts integer pixels, as in a 16-bit PNG)"]
+    doc = json.loads(out.read_text())
+    assert doc["input"]["depth_scale"] is None and doc["warnings"] == [lines[0].removeprefix("jaxpose: warning: ")]
+    assert ga_result["input"]["depth_scale"] == 0.001 and ga_result["warnings"] == []
+    # the same metres as the PNG, so the same fit
+    assert doc["cost"] == pytest.approx(ga_result["cost"], rel=1e-5)
+
+
 def test_skeleton_command(capsys):
     stdout, _ = _run(capsys, "skeleton", "spider", "--genome")
     lines = stdout.splitlines()

@@ -37,6 +37,12 @@ def load_depth(path: str, depth_scale: float = 0.001) -> np.ndarray:
     image, a wrong shape, or an absurd size (checked from the file's header,
     before the pixels are decoded).
     """
+    return read_depth(path, depth_scale)[0]
+
+
+def read_depth(path: str, depth_scale: float = 0.001) -> tuple[np.ndarray, bool]:
+    """:func:`load_depth`, and whether ``depth_scale`` was applied: ``False`` for float
+    pixels, which are metres already."""
     path = check_input_file(path, "depth file", "a depth image")
     try:
         depth_scale = float(depth_scale)
@@ -46,13 +52,13 @@ def load_depth(path: str, depth_scale: float = 0.001) -> np.ndarray:
         raise DepthError(f"{path}: depth scale must be a positive number, got {depth_scale}")
     ext = os.path.splitext(path)[1].lower()
     if ext == ".npy":
-        depth = _read_npy(path, depth_scale)
+        depth, scaled = _read_npy(path, depth_scale)
     else:
-        depth = _read_image(path, depth_scale)
+        depth, scaled = _read_image(path, depth_scale)
     depth = depth.astype(np.float32)
     with np.errstate(invalid="ignore"):
         depth[~np.isfinite(depth) | (depth <= 0)] = np.nan
-    return depth
+    return depth, scaled
 
 
 def check_input_file(path, noun: str, thing: str) -> str:
@@ -71,7 +77,7 @@ def check_input_file(path, noun: str, thing: str) -> str:
     return path
 
 
-def _read_npy(path: str, depth_scale: float) -> np.ndarray:
+def _read_npy(path: str, depth_scale: float) -> tuple[np.ndarray, bool]:
     """A 2-D numeric ``.npy`` array, its header checked before the data is read.
 
     Floats are metres; integers are stored units (like a PNG's), times ``depth_scale``.
@@ -94,7 +100,7 @@ def _read_npy(path: str, depth_scale: float) -> np.ndarray:
         arr *= np.float32(depth_scale)
     if arr.ndim == 3 and arr.shape[-1] == 1:
         arr = arr[..., 0]
-    return arr
+    return arr, integer
 
 
 def npy_header(path: str):
@@ -143,7 +149,7 @@ def _png_header(path: str):
 _PNG_CHANNELS = {0: 1, 2: 3, 3: 3, 4: 2, 6: 4}
 
 
-def _read_image(path: str, depth_scale: float) -> np.ndarray:
+def _read_image(path: str, depth_scale: float) -> tuple[np.ndarray, bool]:
     """A single-channel 16-bit (or other integer) image scaled to metres, or a float image in metres."""
     try:
         hdr = _png_header(path)
@@ -180,10 +186,10 @@ def _read_image(path: str, depth_scale: float) -> np.ndarray:
         raise DepthError(f"{path}: unsupported pixel type {img.dtype}")
     _check_shape(img.shape, path)
     if img.dtype.kind == "f":  # float depth maps are metres, like a float .npy
-        return img.astype(np.float32)
+        return img.astype(np.float32), False
     depth = img.astype(np.float32) * np.float32(depth_scale)
     depth[img == 0] = np.nan
-    return depth
+    return depth, True
 
 
 def _short(e: BaseException, n: int = 120) -> str:
