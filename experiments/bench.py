@@ -705,7 +705,8 @@ def run_e2e(name: str, args) -> dict:
         "config": {k: v for k, v in config.to_dict().items() if k != "objective"},
         "render_s": render_s,
         "compile_s": runs[0]["compile_s"],  # trace + lowering + XLA, summed over the compiling threads
-        "compile_wall_s": runs[0]["wall_s"] - run_s,  # what a user waits: the cold fit minus a warm one
+        # what a user waits: the cold fit minus a warm one (unknown without a warm fit)
+        "compile_wall_s": runs[0]["wall_s"] - run_s if len(runs) > 1 else None,
         "cold_wall_s": runs[0]["wall_s"],
         "warm_run_s": run_s,
         "evaluations": evals,
@@ -1119,7 +1120,8 @@ def main(argv=None) -> int:
                 save()
                 t2 = ", ".join(f"PCP>={k}: {fmt(v['median_s'], '.3g')} s ({v['reached']}/{v['of']})"
                                for k, v in e["time_to_pcp"].items())
-                log(f"  {name}: compile {e['compile_wall_s']:.1f} s (work {e['compile_s']:.1f} s in all threads), "
+                log(f"  {name}: compile {fmt(e['compile_wall_s'], '.1f')} s "
+                    f"(work {e['compile_s']:.1f} s in all threads), "
                     f"warm fit {e['warm_run_s']:.2f} s, "
                     f"{fmt_rate(e['evals_per_s'])} evals/s ({fmt_rate(e['distance_evals_per_s'])} dist/s), "
                     f"recompiles {e['recompiles_warm']}, mean symmetric PCP {e['pcp_symmetric_mean']:.3f}; {t2}")

@@ -431,13 +431,17 @@ def collision_cost(pairs: CollisionPairs, sigma, start, end, radius, margin: flo
     and the pairs' gradients go back to the links by products with constant 0/1
     matrices.  Same values as differentiating the arithmetic (to round-off), and a
     smaller program to compile than the backward pass of every clamp and gather.
+    Reverse mode only (``jax.grad``, ``jax.vjp``): forward-mode derivatives
+    (``jax.jvp``, ``jax.jacfwd``, ``jax.hessian``) of the term raise.  ``sigma`` and
+    ``margin`` are scalars or one per individual ``(P,)``.
     """
     if len(pairs.i) == 0:  # (population_cost leaves the term out then)
         return jnp.zeros(start.shape[:1], start.dtype)
     # link-major coordinates (3, L, P): the pairs' gathers pick whole rows
     s, e = jnp.transpose(start, (2, 1, 0)), jnp.transpose(end, (2, 1, 0))
     r = jnp.broadcast_to(jnp.asarray(radius, start.dtype), start.shape[:-1]).T
-    penalty = _pair_penalty(pairs.i, pairs.j, start.shape[1], start.dtype)
+    i, j = (k if isinstance(k, (np.ndarray, jax.Array)) else np.asarray(k, np.int32) for k in (pairs.i, pairs.j))
+    penalty = _pair_penalty(i, j, start.shape[1], start.dtype)
     return penalty(s, e, r, jnp.asarray(pairs.rho, start.dtype), jnp.asarray(sigma, start.dtype),
                    jnp.asarray(margin, start.dtype))
 
@@ -463,12 +467,17 @@ def _pair_penalty(i, j, L: int, dtype):
         g_e = links(to_i, n * u) - links(to_j, n * v)
         g_r = links(to_i + to_j, dh * rho[:, None] * margin)
         g_rho = jnp.sum(dh * margin * (r[i] + r[j]), 1)
-        g_sigma = -jnp.sum(g * jnp.sum(h / (sigma * (sigma + h)), 0))
-        return g_s, g_e, g_r, g_rho, g_sigma, jnp.sum(dh * reach)
+        g_sigma = -g * jnp.sum(h / (sigma * (sigma + h)), 0)  # (P,)
+        return g_s, g_e, g_r, g_rho, _sum_to(g_sigma, sigma.shape), _sum_to(jnp.sum(dh * reach, 0), margin.shape)
 
     penalty = jax.custom_vjp(lambda *a: forward(*a)[0])
     penalty.defvjp(forward, backward)
     return penalty
+
+
+def _sum_to(x, shape):
+    """``x (P,)`` summed to a scalar argument's ``shape`` (``()``), or kept for one per individual."""
+    return x.reshape(shape) if x.shape == tuple(shape) else jnp.sum(x).reshape(shape)
 
 
 # --------------------------------------------------------------------------- total

@@ -11,7 +11,7 @@ import numpy as np
 from .camera import Intrinsics, cloud_view, depth_to_cloud, sensor_points_to_cloud
 from .errors import ConfigError, DepthError, InputWarning
 from .io.cloud_file import is_cloud_file, load_points, parse_viewpoint, to_sensor_frame
-from .io.depth_file import load_depth, parse_intrinsics, read_depth
+from .io.depth_file import parse_intrinsics, read_depth
 from .io.fit_result import file_sha256, result_document
 from .io.skeleton_file import load_skeleton, resolve_skeleton_path
 from .objective import Cloud, cloud_spread
@@ -100,14 +100,16 @@ def load_observation(depth_path: str, options: DepthOptions = DepthOptions()):
 
 
 def _read_observation(depth_path: str, options: DepthOptions):
-    """:func:`load_observation`, and whether the depth scale was applied (integer pixels)."""
+    """:func:`load_observation`, and whether the depth scale was applied (integer pixels
+    in the depth image or its background)."""
     options.validate()
     depth, scaled = read_depth(depth_path, options.depth_scale)
     k = parse_intrinsics(options.intrinsics, depth.shape, image=str(depth_path))
     background = None
     if options.background:
         try:
-            background = load_depth(options.background, options.depth_scale)
+            background, background_scaled = read_depth(options.background, options.depth_scale)
+            scaled = scaled or background_scaled
         except DepthError as e:
             raise DepthError(f"background image {e}") from None
         if background.shape != depth.shape:
@@ -192,8 +194,9 @@ SCALE_MARGIN = 1.5  # how far outside the skeleton's scale range a cloud's size 
 
 
 def unused_depth_scale(options: DepthOptions, scaled: bool, source: str) -> str | None:
-    """A warning when a depth scale other than the default was given for an image whose
-    pixels are floats (metres already, so the scale is not applied); ``None`` otherwise."""
+    """A warning when a depth scale other than the default was given for an image (and
+    background) whose pixels are floats (metres already, so the scale is not applied);
+    ``None`` otherwise."""
     if scaled or options.depth_scale == DepthOptions.depth_scale:
         return None
     return (f"{source}: the depth scale {options.depth_scale:g} was not applied: the image stores float "

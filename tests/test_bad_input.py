@@ -467,6 +467,24 @@ def test_float_images_are_metres_integer_images_stored_units(tmp_path, ext):
         assert np.isnan(got[mm == 0]).all()
 
 
+def test_the_depth_scale_is_recorded_and_warned_about_only_where_it_applies(tmp_path):
+    """Applied to integer pixels in the image or its background; float pixels are metres."""
+    from jaxpose.pipeline import DepthOptions, _read_observation, unused_depth_scale
+
+    metres = np.full((30, 40), 2.0, np.float32)
+    metres[10:20, 15:25] = 1.5
+    np.save(tmp_path / "m.npy", metres)
+    np.save(tmp_path / "bg_m.npy", np.full((30, 40), 2.0, np.float32))
+    np.save(tmp_path / "bg_mm.npy", np.full((30, 40), 2000, np.uint16))
+    for background, scaled in ((None, False), ("bg_m.npy", False), ("bg_mm.npy", True)):
+        opts = DepthOptions("30,30,19.5,14.5", depth_scale=0.001, background=background and str(tmp_path / background))
+        got = _read_observation(str(tmp_path / "m.npy"), opts)
+        assert got[3] is scaled and int(np.sum(np.asarray(got[2].weights) > 0)) > 0
+        odd = DepthOptions(opts.intrinsics, depth_scale=0.002, background=opts.background)
+        assert (unused_depth_scale(odd, scaled, "m.npy") is None) is scaled
+        assert unused_depth_scale(opts, scaled, "m.npy") is None  # the default scale draws no warning
+
+
 def test_special_files_are_refused_without_blocking(tmp_path):
     os.mkfifo(tmp_path / "pipe.png")  # opening a FIFO would wait for a writer forever
     with pytest.raises(DepthError, match="not a regular file"):

@@ -199,3 +199,17 @@ def test_collision_cost_gradient_matches_finite_differences():
         args = (jnp.asarray(0.1), start, end, radius, rho, jnp.asarray(0.8))
         assert float(total(*args)) > 0.1  # the capsules do collide: the gradient is not of zeros
         check_grads(total, args, order=1, modes=["rev"], eps=1e-6, atol=1e-5, rtol=1e-5)
+        # one sigma and one margin per individual
+        check_grads(total, (jnp.asarray([0.1, 0.12, 0.08]),) + args[1:5] + (jnp.asarray([0.8, 0.7, 0.9]),),
+                    order=1, modes=["rev"], eps=1e-6, atol=1e-5, rtol=1e-5)
+
+
+def test_collision_pairs_given_as_lists_cost_the_same():
+    skel = load_skeleton("spider")
+    pairs = collision_pairs(skel, 0.8)
+    lk = forward_kinematics(skel, rest_pose(skel))
+    start, end = lk.start[None], lk.end[None].at[0, 0].set(lk.start[3])  # one leg bent onto another
+    as_lists = pairs._replace(i=pairs.i.tolist(), j=pairs.j.tolist())
+    want = collision_cost(pairs, 0.1, start, end, lk.radius[None], 0.8)
+    assert float(want[0]) > 0
+    np.testing.assert_array_equal(collision_cost(as_lists, 0.1, start, end, lk.radius[None], 0.8), want)
