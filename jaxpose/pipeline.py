@@ -256,13 +256,12 @@ def fit_depth_file(
     config = config.for_skeleton(skel)  # the generations the fit runs, also in the result's record
     if is_cloud_file(depth_path):
         depth, k, cloud, inputs = load_cloud_observation(depth_path, options)
-        frame = "sensor (the cloud's viewpoint; x right, y down, z forward), metres"
+        frame, unused_scale = "sensor (the cloud's viewpoint; x right, y down, z forward), metres", None
     else:
         depth, k, cloud, scaled = _read_observation(depth_path, options)
         inputs, frame = _depth_record(depth_path, options, k, cloud, scaled), None
-    notes = [w for w in (scale_warning(skel, cloud, str(depth_path)),
-                         None if is_cloud_file(depth_path) else unused_depth_scale(options, scaled, str(depth_path)))
-             if w]
+        unused_scale = unused_depth_scale(options, scaled, str(depth_path))
+    notes = [w for w in (scale_warning(skel, cloud, str(depth_path)), unused_scale) if w]
     for w in notes:
         warnings.warn(w, InputWarning, stacklevel=2)
     result = fit_cloud(cloud, skel, seed, config, progress)
