@@ -13,8 +13,11 @@ implementations of the same data term are timed on the same inputs:
 - ``numpy``: a loop over individuals, each vectorised over points and links with
   NumPy on ``(N, L)`` coordinate arrays (single core).
 
-Each is compiled / warmed up first (compile time reported separately), then timed
-as the median of several calls ended by ``block_until_ready``.  NumPy and the naive
+Each is compiled / warmed up first (compile time reported separately), then the
+three are timed side by side, in rounds that call each in turn (so that the
+machine's drift falls on all three alike); a throughput is the median of its calls
+ended by ``block_until_ready``, and the ratios' spread over the rounds is reported
+beside them.  NumPy and the naive
 version run on the first ``P'`` individuals when the whole population would take
 too long (NumPy: ``--numpy-seconds``) or too much memory (naive: ``--naive-max-mb``);
 their throughput is linear in ``P`` and is reported as measured, marked ``*``.
@@ -417,6 +420,46 @@ def time_calls(fn, min_repeats: int, max_repeats: int, budget_s: float):
     return Timings(times, cpu), out
 
 
+def time_interleaved(fns: dict, min_rounds: int, max_rounds: int, budget_s: float):
+    """Time several implementations side by side: in rounds, each called in turn, so that
+    the machine's drift (other load, clock changes) falls on all of them alike.
+
+    In each round every implementation runs for about as long as the slowest one's
+    single call (fast ones are called several times, at most ``max_rounds // min_rounds``).
+    Rounds go on until ``min_rounds`` of them and ``budget_s`` seconds are both reached,
+    or ``max_rounds``.  Returns ``({name: Timings of all calls}, {name: last output},
+    [{name: median seconds of the round}, ...])``.
+    """
+    first = {}
+    for name, fn in fns.items():  # one call each to size the rounds (all are warm)
+        t = time.perf_counter()
+        jax.block_until_ready(fn())
+        first[name] = time.perf_counter() - t
+    slowest = max(first.values())
+    cap = max(1, max_rounds // max(min_rounds, 1))
+    reps = {name: int(min(cap, max(1, round(slowest / max(s, 1e-9))))) for name, s in first.items()}
+    wall = {name: [] for name in fns}
+    cpu = {name: [] for name in fns}
+    outs, rounds = {}, []
+    start = time.perf_counter()
+    while len(rounds) < max_rounds:
+        this = {}
+        for name, fn in fns.items():
+            ts = []
+            for _ in range(reps[name]):
+                c = time.process_time()
+                t = time.perf_counter()
+                outs[name] = jax.block_until_ready(fn())
+                ts.append(time.perf_counter() - t)
+                cpu[name].append(time.process_time() - c)
+            wall[name] += ts
+            this[name] = statistics.median(ts)
+        rounds.append(this)
+        if len(rounds) >= min_rounds and time.perf_counter() - start >= budget_s:
+            break
+    return {name: Timings(wall[name], cpu[name]) for name in fns}, outs, rounds
+
+
 class Timings(list):
     """Wall-clock seconds of the calls, with the process CPU seconds (all threads) in ``.cpu``."""
 
@@ -456,16 +499,13 @@ def measure_config(L: int, N: int, P: int, args) -> dict:
     rec = {"skeleton": pr["skeleton"], "L": L, "N": N, "P": P, "distances": dist, "block": args.block}
     mr, Mr, budget = args.min_repeats, args.repeats, args.time_budget
 
-    # (c) the kernel
+    # (c) the kernel: compiled and warmed here, timed below with the other two
     kargs = kernel_args(pr)
-    compiled, c_s, temp = compile_timed(kernel_fn(args.block), kargs)
+    kernel, c_s, temp = compile_timed(kernel_fn(args.block), kargs)
     t = time.perf_counter()
-    k_out = np.asarray(jax.block_until_ready(compiled(*kargs)), np.float64)
+    k_out = np.asarray(jax.block_until_ready(kernel(*kargs)), np.float64)
     warm = time.perf_counter() - t
-    times, _ = time_calls(lambda: compiled(*kargs), mr, Mr, budget)
-    rec["kernel"] = {"compile_s": c_s, "first_call_s": warm, "xla_temp_bytes": temp, "P_measured": P,
-                     **timing_record(times, dist)}
-    del compiled
+    rec["kernel"] = {"compile_s": c_s, "first_call_s": warm, "xla_temp_bytes": temp, "P_measured": P}
     for b in args.blocks or ():
         if b == args.block:
             continue
@@ -474,7 +514,6 @@ def measure_config(L: int, N: int, P: int, args) -> dict:
         tb_times, _ = time_calls(lambda: cb(*kargs), mr, Mr, budget)
         rec.setdefault("kernel_blocks", {})[str(b)] = {"compile_s": cbs, "xla_temp_bytes": tb,
                                                        **timing_record(tb_times, dist)}
-        del cb
 
     # the kernel's gradient (reverse mode through its scans), on the first --grad-P individuals,
     # at the reference configuration or with --grad
@@ -488,30 +527,26 @@ def measure_config(L: int, N: int, P: int, args) -> dict:
         g_times, _ = time_calls(lambda: cg(*gargs), mr, Mr, budget)
         g = {"compile_s": cg_s, "first_call_s": gwarm, "xla_temp_bytes": gtemp, "P_measured": Pg, "subset": Pg < P,
              **timing_record(g_times, Pg * N * L)}
-        g["slowdown_vs_forward"] = rec["kernel"]["evals_per_s"] / g["evals_per_s"]  # per distance
         rec["kernel_grad"] = g
         del cg, gargs
 
     # (b) the naive vmap: full P when its XLA temporaries fit in --naive-max-mb, else fewer individuals
     limit = args.naive_max_mb * 2**20
     nargs = naive_args(pr)
-    compiled, nc_s, full_temp = compile_timed(naive_cost, nargs)  # compiling does not allocate the scratch
+    naive, nc_s, full_temp = compile_timed(naive_cost, nargs)  # compiling does not allocate the scratch
     ntemp = full_temp
     per_ind = (full_temp / P) if full_temp else 8.0 * N * L * 4
     Pn = P if per_ind * P <= limit else min(P, pow2_floor(limit / per_ind))
     if Pn < P:
         nargs = naive_args(pr, Pn)
-        compiled, nc_s, ntemp = compile_timed(naive_cost, nargs)
+        naive, nc_s, ntemp = compile_timed(naive_cost, nargs)
     t = time.perf_counter()
-    n_out = np.asarray(jax.block_until_ready(compiled(*nargs)), np.float64)
+    n_out = np.asarray(jax.block_until_ready(naive(*nargs)), np.float64)
     nwarm = time.perf_counter() - t
-    times, _ = time_calls(lambda: compiled(*nargs), mr, Mr, budget)
     rec["naive_vmap"] = {"compile_s": nc_s, "first_call_s": nwarm, "xla_temp_bytes": ntemp,
-                         "xla_temp_bytes_full_P": full_temp, "P_measured": Pn, "subset": Pn < P,
-                         **timing_record(times, Pn * N * L)}
-    del compiled, nargs
+                         "xla_temp_bytes_full_P": full_temp, "P_measured": Pn, "subset": Pn < P}
 
-    # (a) NumPy: as many individuals as fit in --numpy-seconds (over min_repeats calls)
+    # (a) NumPy: as many individuals as one call of --numpy-seconds / --min-repeats allows
     np_args = (pr["points"], pr["weights"], pr["sigma"])
     t = time.perf_counter()
     numpy_cost(*np_args, pr["start"][:1], pr["end"][:1], pr["radius"][:1])  # warm (page faults, caches)
@@ -521,9 +556,22 @@ def measure_config(L: int, N: int, P: int, args) -> dict:
     t1 = min(t1, (time.perf_counter() - t) / 2)
     Pnp = int(max(1, min(P, args.numpy_seconds / max(mr, 1) / max(t1, 1e-9))))
     sl = slice(0, Pnp)
-    times, np_out = time_calls(lambda: numpy_cost(*np_args, pr["start"][sl], pr["end"][sl], pr["radius"][sl]),
-                               mr, Mr, args.numpy_seconds)
-    rec["numpy"] = {"dtype": "float32", "P_measured": Pnp, "subset": Pnp < P, **timing_record(times, Pnp * N * L)}
+    rec["numpy"] = {"dtype": "float32", "P_measured": Pnp, "subset": Pnp < P}
+
+    # the three timed side by side, in rounds (see time_interleaved)
+    calls = {"kernel": lambda: kernel(*kargs), "naive_vmap": lambda: naive(*nargs),
+             "numpy": lambda: numpy_cost(*np_args, pr["start"][sl], pr["end"][sl], pr["radius"][sl])}
+    counts = {"kernel": dist, "naive_vmap": Pn * N * L, "numpy": Pnp * N * L}
+    times, outs, rounds = time_interleaved(calls, mr, Mr, 2 * budget + args.numpy_seconds)
+    np_out = outs["numpy"]
+    for name, tm in times.items():
+        rec[name].update(timing_record(tm, counts[name]))
+    if "kernel_grad" in rec:
+        rec["kernel_grad"]["slowdown_vs_forward"] = rec["kernel"]["evals_per_s"] / rec["kernel_grad"]["evals_per_s"]
+    rec["rounds"] = len(rounds)
+    per_round = {f"kernel_vs_{o}": sorted((counts["kernel"] / r["kernel"]) / (counts[o] / r[o]) for r in rounds)
+                 for o in ("numpy", "naive_vmap")}
+    rec["ratio_range"] = {k: [v[0], statistics.median(v), v[-1]] for k, v in per_round.items()}
 
     # agreement: every pair on the individuals both computed; and against float64 NumPy
     n64 = min(P, 4)
@@ -558,8 +606,26 @@ def config_line(rec: dict) -> str:
     return (f"kernel {fmt_rate(k['evals_per_s'])}/s ({k['median_s'] * 1e3:.3g} ms, cpu/wall "
             f"{fmt(k.get('cpu_per_wall'), '.2f')}, compile {k['compile_s']:.2f} s) | "
             f"naive {fmt_rate(nv['evals_per_s'])}/s{star(nv)} | numpy {fmt_rate(nu['evals_per_s'])}/s{star(nu)} | "
-            f"x{rec['kernel_vs_numpy']:.3g} numpy, x{rec['kernel_vs_naive_vmap']:.3g} naive | "
+            f"x{rec['kernel_vs_numpy']:.3g} numpy, x{rec['kernel_vs_naive_vmap']:.3g} naive{round_ranges(rec)} | "
             f"max_rel_diff {rec['max_rel_diff']:.2g}{flag}")
+
+
+def round_ranges(rec: dict) -> str:
+    """`` (over 3 rounds: numpy 41-47x, naive 8.1-9x)``: the spread of the ratios over the
+    side-by-side rounds (empty for results written before rounds were recorded)."""
+    rr = rec.get("ratio_range")
+    if not rr:
+        return ""
+    return (f" (over {rec['rounds']} rounds: numpy {rr['kernel_vs_numpy'][0]:.3g}-{rr['kernel_vs_numpy'][2]:.3g}x, "
+            f"naive {rr['kernel_vs_naive_vmap'][0]:.3g}-{rr['kernel_vs_naive_vmap'][2]:.3g}x)")
+
+
+def ratio_ranges(h: dict) -> str:
+    """:func:`round_ranges` for a headline."""
+    if not h.get("kernel_vs_numpy_range"):
+        return ""
+    return round_ranges({"rounds": h["ratio_rounds"], "ratio_range": {
+        "kernel_vs_numpy": h["kernel_vs_numpy_range"], "kernel_vs_naive_vmap": h["kernel_vs_naive_vmap_range"]}})
 
 
 def config_key(L, N, P) -> str:
@@ -831,6 +897,9 @@ def headline(results: dict) -> dict:
         "numpy_evals_per_s": r["numpy"]["evals_per_s"],
         "kernel_vs_numpy": r["kernel_vs_numpy"],
         "kernel_vs_naive_vmap": r["kernel_vs_naive_vmap"],
+        "ratio_rounds": r.get("rounds"),
+        "kernel_vs_numpy_range": (r.get("ratio_range") or {}).get("kernel_vs_numpy"),
+        "kernel_vs_naive_vmap_range": (r.get("ratio_range") or {}).get("kernel_vs_naive_vmap"),
         "max_rel_diff": r["max_rel_diff"],
         "kernel_compile_s": r["kernel"]["compile_s"],
         "kernel_cpu_per_wall": r["kernel"].get("cpu_per_wall"),
@@ -917,7 +986,7 @@ def markdown(results: dict) -> str:
         out += ["", f"Reference configuration (P={REFERENCE['P']}, N={REFERENCE['N']}, L={REFERENCE['L']}): "
                 f"kernel {fmt_rate(h['kernel_evals_per_s'])}/s, naive vmap {fmt_rate(h['naive_vmap_evals_per_s'])}/s, "
                 f"NumPy {fmt_rate(h['numpy_evals_per_s'])}/s; kernel/NumPy {h['kernel_vs_numpy']:.3g}, "
-                f"kernel/naive {h['kernel_vs_naive_vmap']:.3g}; max rel diff {h['max_rel_diff']:.2g}."]
+                f"kernel/naive {h['kernel_vs_naive_vmap']:.3g}{ratio_ranges(h)}; max rel diff {h['max_rel_diff']:.2g}."]
     e2e = [e for e in (results.get("e2e") or {}).values() if e.get("done")]
     if e2e:
         thr = sorted({t for e in e2e for t in e["time_to_pcp"]}, key=float)
@@ -1142,7 +1211,8 @@ def main(argv=None) -> int:
                 if p.get("error"):
                     log(f"  {key}: ERROR {p['error']}")
                 else:
-                    log(f"  {key}: XLA temp {fmt(p['xla_temp_bytes'] / 2**20 if p.get('xla_temp_bytes') else None)} MiB, "
+                    temp = p['xla_temp_bytes'] / 2**20 if p.get('xla_temp_bytes') else None
+                    log(f"  {key}: XLA temp {fmt(temp)} MiB, "
                         f"baseline RSS {p['rss_baseline_mib']:.0f} MiB, compile peak "
                         f"+{fmt(p.get('compile_peak_over_baseline_mib'), '.0f')} MiB, run peak "
                         f"+{fmt(p.get('run_peak_over_baseline_mib'), '.0f')} MiB")
@@ -1169,7 +1239,7 @@ def main(argv=None) -> int:
     if h:
         log(f"reference P=1024 N=2048 L=17: kernel {fmt_rate(h['kernel_evals_per_s'])}/s, naive vmap "
             f"{fmt_rate(h['naive_vmap_evals_per_s'])}/s, numpy {fmt_rate(h['numpy_evals_per_s'])}/s; "
-            f"kernel/numpy {h['kernel_vs_numpy']:.3g}, kernel/naive {h['kernel_vs_naive_vmap']:.3g}, "
+            f"kernel/numpy {h['kernel_vs_numpy']:.3g}, kernel/naive {h['kernel_vs_naive_vmap']:.3g}{ratio_ranges(h)}, "
             f"max_rel_diff {h['max_rel_diff']:.2g}")
     bad = [k for k, r in results["configs"].items() if r.get("done") and not r["agree"]]
     if bad:
