@@ -569,16 +569,24 @@ def pyplot():
 # --------------------------------------------------------------------------- summaries
 
 
+def mean_scored(values) -> float | None:
+    """Mean of the values that are not ``None`` (a metric a record could not score, e.g. PCP
+    for a skeleton whose links all have length zero); ``None`` when none is left."""
+    vals = [float(v) for v in values if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
 def seed_stats(records: list[dict], value) -> dict:
     """``mean`` of ``value(record)`` over all records, and ``std`` over seeds of the per-seed
-    means (sample standard deviation; ``None`` with one seed); ``per_seed`` means."""
+    means (sample standard deviation; ``None`` with one seed); ``per_seed`` means.  Records
+    whose value is ``None`` (not scored) are left out of every mean."""
+    records = [r for r in records if value(r) is not None]
     if not records:
         return {"mean": None, "std": None, "per_seed": {}}
-    vals = np.array([value(r) for r in records], np.float64)
     seeds = sorted({r["seed"] for r in records})
-    per_seed = {s: float(np.mean([value(r) for r in records if r["seed"] == s])) for s in seeds}
+    per_seed = {s: mean_scored(value(r) for r in records if r["seed"] == s) for s in seeds}
     std = float(np.std(list(per_seed.values()), ddof=1)) if len(seeds) > 1 else None
-    return {"mean": float(vals.mean()), "std": std, "per_seed": per_seed}
+    return {"mean": mean_scored(value(r) for r in records), "std": std, "per_seed": per_seed}
 
 
 def flat_row(rec: dict) -> dict:

@@ -99,3 +99,12 @@ def test_sweep_islands_flag_sets_the_configs_islands():
     assert S.parse_args(["--quick"]).islands == FitConfig().islands  # the default: FitConfig's
     with pytest.raises(SystemExit):
         S.parse_args(["--islands", "0"])
+
+
+def test_seed_stats_leave_out_records_that_could_not_be_scored():
+    recs = [{"seed": 0, "v": 0.5}, {"seed": 0, "v": None}, {"seed": 1, "v": 1.0}, {"seed": 1, "v": 0.0}]
+    st = common.seed_stats(recs, lambda r: r["v"])
+    assert st["per_seed"] == {0: 0.5, 1: 0.5}
+    assert st["mean"] == pytest.approx(0.5) and st["std"] == pytest.approx(0.0)
+    assert common.seed_stats([{"seed": 0, "v": None}], lambda r: r["v"]) == {"mean": None, "std": None, "per_seed": {}}
+    assert common.mean_scored([None, 0.25, 0.75]) == pytest.approx(0.5) and common.mean_scored([None]) is None
