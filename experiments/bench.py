@@ -460,6 +460,14 @@ def time_interleaved(fns: dict, min_rounds: int, max_rounds: int, budget_s: floa
     return {name: Timings(wall[name], cpu[name]) for name in fns}, outs, rounds
 
 
+def round_ratios(rounds: list[dict], counts: dict, a: str, b: str) -> list[float]:
+    """``[lowest, median, highest]`` over the rounds of ``a``'s throughput over ``b``'s, each
+    round's from its own median call times (``rounds`` as :func:`time_interleaved` returns
+    them; ``counts``: distances per call)."""
+    r = sorted((counts[a] / x[a]) / (counts[b] / x[b]) for x in rounds)
+    return [r[0], statistics.median(r), r[-1]]
+
+
 class Timings(list):
     """Wall-clock seconds of the calls, with the process CPU seconds (all threads) in ``.cpu``."""
 
@@ -569,9 +577,7 @@ def measure_config(L: int, N: int, P: int, args) -> dict:
     if "kernel_grad" in rec:
         rec["kernel_grad"]["slowdown_vs_forward"] = rec["kernel"]["evals_per_s"] / rec["kernel_grad"]["evals_per_s"]
     rec["rounds"] = len(rounds)
-    per_round = {f"kernel_vs_{o}": sorted((counts["kernel"] / r["kernel"]) / (counts[o] / r[o]) for r in rounds)
-                 for o in ("numpy", "naive_vmap")}
-    rec["ratio_range"] = {k: [v[0], statistics.median(v), v[-1]] for k, v in per_round.items()}
+    rec["ratio_range"] = {f"kernel_vs_{o}": round_ratios(rounds, counts, "kernel", o) for o in ("numpy", "naive_vmap")}
 
     # agreement: every pair on the individuals both computed; and against float64 NumPy
     n64 = min(P, 4)
@@ -585,9 +591,10 @@ def measure_config(L: int, N: int, P: int, args) -> dict:
     rec["max_rel_diff"] = max(diffs.values())
     rec["kernel_rel_err_vs_float64"] = rel_diff(k_out[:n64], np64)
     rec["agree"] = rec["max_rel_diff"] <= TOLERANCE
-    k, nv, nu = rec["kernel"]["evals_per_s"], rec["naive_vmap"]["evals_per_s"], rec["numpy"]["evals_per_s"]
-    rec["kernel_vs_numpy"] = k / nu
-    rec["kernel_vs_naive_vmap"] = k / nv
+    nv, nu = rec["naive_vmap"]["evals_per_s"], rec["numpy"]["evals_per_s"]
+    # the ratios: medians of the rounds' ratios (each round's three measured side by side)
+    rec["kernel_vs_numpy"] = rec["ratio_range"]["kernel_vs_numpy"][1]
+    rec["kernel_vs_naive_vmap"] = rec["ratio_range"]["kernel_vs_naive_vmap"][1]
     # time for the whole population (measured for the kernel, from the throughput for the others)
     rec["time_full_P_s"] = {"kernel": rec["kernel"]["median_s"], "naive_vmap": dist / nv, "numpy": dist / nu}
     rec["done"] = True
@@ -933,7 +940,9 @@ def markdown(results: dict) -> str:
             "kernel CPU/wall: process CPU time over wall time during the timed calls (above 1: several threads; "
             "below 1: the process waited for a core, i.e. the machine was busy); kernel dist/CPU-s: distances per "
             "CPU-second, less sensitive to other load. "
-            "Ratios are of throughputs. max rel diff: largest relative difference between any two of the three "
+            "The three are timed side by side in rounds; ratios are medians over the rounds of each round's ratio "
+            "of throughputs (so not always the quotient of the columns). max rel diff: largest relative difference "
+            "between any two of the three "
             f"costs (must be ≤ {TOLERANCE:g}).", "",
             "| skeleton (L) | N | P | P·N·L | kernel compile s | kernel ms | kernel dist/s | kernel CPU/wall "
             "| kernel dist/CPU-s "
@@ -1051,12 +1060,16 @@ def parse_args(argv=None):
                                                    "goes beside it (.md)")
     ap.add_argument("--out-dir", default=os.path.join(HERE, "results"), help="folder for the outputs")
     ap.add_argument("--resume", action="store_true", help="skip configurations already in the JSON file")
-    ap.add_argument("--repeats", type=int, default=30, help="most timed calls per measurement")
-    ap.add_argument("--min-repeats", type=int, default=3, help="fewest timed calls per measurement")
+    ap.add_argument("--repeats", type=int, default=30,
+                    help="most rounds of the side-by-side timing (and most timed calls of the other measurements)")
+    ap.add_argument("--min-repeats", type=int, default=3,
+                    help="fewest rounds of the side-by-side timing (and fewest calls of the other measurements)")
     ap.add_argument("--time-budget", type=float, default=2.0,
-                    help="seconds of timed calls after which a measurement stops at --min-repeats")
+                    help="seconds of timed calls for the kernel and for the naive vmap (the rounds go on until "
+                         "2 x this + --numpy-seconds); also each other measurement's budget")
     ap.add_argument("--numpy-seconds", type=float, default=3.0,
-                    help="time budget of the NumPy measurement (decides how many individuals it runs)")
+                    help="NumPy's share of the rounds' budget; one NumPy call takes about this / --min-repeats "
+                         "(decides how many individuals it runs)")
     ap.add_argument("--naive-max-mb", type=float, default=1100.0,
                     help="largest XLA scratch memory of the naive vmap; beyond, it runs on fewer individuals")
     ap.add_argument("--block", type=int, default=ObjectiveConfig().block, help="kernel block size (points)")

@@ -392,8 +392,9 @@ class FitRunner:
         self.store.put(key, rec)
         self.ran += 1
         s = rec["symmetric"]
+        shown = lambda x: "-" if x is None else f"{x:.3f}"  # noqa: E731 - PCP is None with no link scored
         log(f"[{self.done:>4}/{self.total}] {ds.model:<8} {img.name:<16} {label:<20} seed {seed}: "
-            f"PCP {s['pcp']:.3f} (strict {rec['strict']['pcp']:.3f}, MPJPE {s['mpjpe_mm']:5.0f} mm) "
+            f"PCP {shown(s['pcp'])} (strict {shown(rec['strict']['pcp'])}, MPJPE {s['mpjpe_mm']:5.0f} mm) "
             f"{rec['wall_seconds']:7.2f} s")
         return rec
 
