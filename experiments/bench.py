@@ -16,8 +16,8 @@ implementations of the same data term are timed on the same inputs:
 Each is compiled / warmed up first (compile time reported separately), then the
 three are timed side by side, in rounds that call each in turn (so that the
 machine's drift falls on all three alike); a throughput is the median of its calls
-ended by ``block_until_ready``, and the ratios' spread over the rounds is reported
-beside them.  NumPy and the naive
+ended by ``block_until_ready``, a ratio the median of the rounds' ratios, with their
+spread over the rounds beside it.  NumPy and the naive
 version run on the first ``P'`` individuals when the whole population would take
 too long (NumPy: ``--numpy-seconds``) or too much memory (naive: ``--naive-max-mb``);
 their throughput is linear in ``P`` and is reported as measured, marked ``*``.
@@ -621,18 +621,19 @@ def round_ranges(rec: dict) -> str:
     """`` (over 3 rounds: numpy 41-47x, naive 8.1-9x)``: the spread of the ratios over the
     side-by-side rounds (empty for results written before rounds were recorded)."""
     rr = rec.get("ratio_range")
-    if not rr:
-        return ""
-    return (f" (over {rec['rounds']} rounds: numpy {rr['kernel_vs_numpy'][0]:.3g}-{rr['kernel_vs_numpy'][2]:.3g}x, "
-            f"naive {rr['kernel_vs_naive_vmap'][0]:.3g}-{rr['kernel_vs_naive_vmap'][2]:.3g}x)")
+    return _ranges_text(rec.get("rounds"), rr["kernel_vs_numpy"], rr["kernel_vs_naive_vmap"]) if rr else ""
 
 
 def ratio_ranges(h: dict) -> str:
     """:func:`round_ranges` for a headline."""
     if not h.get("kernel_vs_numpy_range"):
         return ""
-    return round_ranges({"rounds": h["ratio_rounds"], "ratio_range": {
-        "kernel_vs_numpy": h["kernel_vs_numpy_range"], "kernel_vs_naive_vmap": h["kernel_vs_naive_vmap_range"]}})
+    return _ranges_text(h["ratio_rounds"], h["kernel_vs_numpy_range"], h["kernel_vs_naive_vmap_range"])
+
+
+def _ranges_text(rounds, numpy_range, naive_range) -> str:
+    return (f" (over {rounds} rounds: numpy {numpy_range[0]:.3g}-{numpy_range[2]:.3g}x, "
+            f"naive {naive_range[0]:.3g}-{naive_range[2]:.3g}x)")
 
 
 def config_key(L, N, P) -> str:
