@@ -7,7 +7,6 @@ from __future__ import annotations
 import os
 import sys
 
-
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "experiments"))
 import bench
 
