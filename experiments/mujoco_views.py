@@ -3,8 +3,8 @@
 Every other data set of this project is rendered by jaxpose's ray caster from the very
 capsules jaxpose fits.  Here the depth images come from a renderer jaxpose did not
 write (MuJoCo's OpenGL depth buffer, ``mujoco.Renderer``) and show each model's true
-geometry (boxes, cylinders, ellipsoids, meshes), which jaxpose approximates by one
-enclosing capsule per link.  The truth is the pose MuJoCo's joint values give: jaxpose's
+geometry (boxes, cylinders, ellipsoids, meshes), which jaxpose approximates by capsules
+(up to ``--capsules`` per link).  The truth is the pose MuJoCo's joint values give: jaxpose's
 forward kinematics of :func:`~jaxpose.io.mjcf.pose_from_qpos` (equal to MuJoCo's
 ``mj_kinematics``, tests/test_import_mjcf.py), moved into the camera's frame.
 
@@ -38,16 +38,17 @@ import numpy as np  # noqa: E402
 
 import jaxpose as jp  # noqa: E402
 from jaxpose.io.results import write_json  # noqa: E402
+from jaxpose.io.urdf import MAX_CAPSULES  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FIXTURES = os.path.join(ROOT, "tests", "fixtures")
 MODELS = [os.path.join(FIXTURES, f) for f in ("ant.xml", "humanoid_lite.xml", "planar.xml", "arm7.urdf",
-                                              "gripper.urdf")]
+                                              "gripper.urdf", "quadruped.urdf")]
 NOISE = 0.0015  # metres at 1 m, growing with the square of depth (a Kinect v1's order)
 RANGE = (0.4, 4.0)  # metres: what the sensor measures
 
 
-def load(path: str):
+def load(path: str, max_capsules: int | None = None):
     """``(mujoco model, jaxpose skeleton, qpos -> jaxpose Pose)`` of an MJCF or URDF file."""
     import mujoco
 
@@ -67,7 +68,7 @@ def load(path: str):
         compiler.set("strippath", "false")
         compiler.set("meshdir", compiler.get("meshdir") or os.path.dirname(os.path.abspath(path)))
         m = mujoco.MjModel.from_xml_string(ET.tostring(robot, encoding="unicode"))
-        skel = jp.load_skeleton(path)
+        skel = jp.load_skeleton(path, max_capsules=max_capsules)
         child = {j.get("name"): j.find("child").get("link") for j in ET.parse(path).getroot().findall("joint")}
 
         def pose(qpos):  # the URDF root sits at MuJoCo's world origin; MuJoCo keeps the joint names
@@ -79,8 +80,31 @@ def load(path: str):
 
         return m, skel, pose
     m = compile_mjcf(path)
-    skel = skeleton_from_model(m, source=path)
+    skel = skeleton_from_model(m, source=path, **({} if max_capsules is None else {"max_capsules": max_capsules}))
     return m, skel, lambda qpos: pose_from_qpos(skel, m, qpos)
+
+
+FRAME_TOL = 0.05  # metres: frames@5cm
+FRAME_AXIS = 0.1  # metres: the axis tips scored by frames@5cm
+
+
+def frames_score(skel, fit_links, true_R, true_origin) -> float:
+    """frames@5cm: the fraction of links (extra capsules of a link left out: they share its frame)
+    whose frame is placed right, its origin and the tips of its three axes ``FRAME_AXIS`` out all
+    within ``FRAME_TOL`` of the truth's (camera frame).  Independent of the capsules, so it compares
+    fits of different capsule models of the same robot.  Strict: interchangeable limbs are not
+    matched, so a fit turned onto a symmetric copy of the truth (an ant a quarter turn round, its
+    legs swapped) scores 0 here while the symmetric PCP counts it right."""
+    from jaxpose.io.urdf import EXTRA_CAPSULE
+
+    keep = [i for i, n in enumerate(skel.link_names) if EXTRA_CAPSULE not in n]
+
+    def marks(R, o):
+        R, o = np.asarray(R, np.float64)[keep], np.asarray(o, np.float64)[keep]
+        return np.concatenate([o[:, None], o[:, None] + FRAME_AXIS * np.swapaxes(R, -1, -2)], 1)  # (L, 4, 3)
+
+    err = np.linalg.norm(marks(fit_links.R_world_link, fit_links.origin) - marks(true_R, true_origin), axis=-1)
+    return float(np.mean(np.all(err <= FRAME_TOL, axis=1)))
 
 
 def random_qpos(m, rng, spread: float, root_joints: bool = True) -> np.ndarray:
@@ -173,7 +197,7 @@ def sensor(depth, rng) -> np.ndarray:
 
 
 def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: str, size=(640, 480),
-              plots: int = 1):
+              plots: int = 1, max_capsules: int | None = None):
     """Render, fit and score ``views`` views of one model; one record per view, and overlay plots
     of the first ``plots`` views in ``out_dir``."""
     import imageio.v3 as iio
@@ -182,7 +206,7 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
     from jaxpose.kinematics import forward_kinematics
     from jaxpose.metrics import evaluate, pcp, pcp_scored
 
-    m, skel, to_pose = load(path)
+    m, skel, to_pose = load(path, max_capsules)
     d = mujoco.MjData(m)
     renderer = mujoco.Renderer(m, size[1], size[0])
     renderer.enable_depth_rendering()
@@ -202,6 +226,8 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
         links = forward_kinematics(skel, to_pose(d.qpos))
         true_start = (np.asarray(links.start, np.float64) - centre) @ R.T
         true_end = (np.asarray(links.end, np.float64) - centre) @ R.T
+        true_origin = (np.asarray(links.origin, np.float64) - centre) @ R.T
+        true_R = R @ np.asarray(links.R_world_link, np.float64)
         options = jp.DepthOptions(intrinsics=f"{k.fx},{k.fy},{k.cx},{k.cy}",
                                   background=bg if np.isfinite(background).any() else None)
         t0 = time.perf_counter()
@@ -221,6 +247,7 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
                "seconds": seconds, "camera_distance": cam.distance, "elevation_deg": -cam.elevation,
                "azimuth_deg": cam.azimuth, **{f"{key}": ev["symmetric"][key] for key in ev["symmetric"]},
                "pcp_strict": ev["strict"]["pcp"],
+               "frames_5cm": frames_score(skel, out.result.links, true_R, true_origin),
                "misplaced": [n for n, miss in zip(skel.link_names, missed) if miss]}
         records.append(rec)
         if v < plots:  # the fit over the depth image, the truth dashed
@@ -232,6 +259,7 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
             save_figure(fig, os.path.join(out_dir, f"{name}_{v}_overlay.png"))
         shown = "-" if rec["pcp"] is None else f"{100 * rec['pcp']:.0f}%"
         print(f"  {name} view {v}: PCP {shown}, PCP@10cm {100 * rec['pcp_10cm']:.0f}%, "
+              f"frames@5cm {100 * rec['frames_5cm']:.0f}%, "
               f"MPJPE {rec['mpjpe_mm']:.0f} mm, {seconds:.1f} s", flush=True)
     renderer.close()
     return records
@@ -249,6 +277,7 @@ def summary(records):
             "views": len(rs), "pcp": float(np.mean(pcps)) if pcps else None,
             "pcp_10cm": float(np.mean([r["pcp_10cm"] for r in rs])),
             "pck_10cm": float(np.mean([r["pck_10cm"] for r in rs])),
+            "frames_5cm": float(np.mean([r["frames_5cm"] for r in rs])),
             "mpjpe_mm": float(np.median([r["mpjpe_mm"] for r in rs])),
             "seconds_median": float(np.median([r["seconds"] for r in rs])),
         })
@@ -256,14 +285,16 @@ def summary(records):
 
 
 def markdown(rows, machine: str) -> str:
-    lines = ["| model | links (PCP-scored) | views | PCP | PCP@10cm | PCK@10cm | MPJPE (mm, median) "
-             "| s / view (median) |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| model | links (PCP-scored) | views | PCP | PCP@10cm | PCK@10cm | frames@5cm | MPJPE (mm, median) "
+             "| s / view (median) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         pcp = "-" if r["pcp"] is None else f"{100 * r['pcp']:.1f}%"
         lines.append(f"| {r['model']} | {r['links']} ({r['pcp_links']}) | {r['views']} | {pcp} | "
-                     f"{100 * r['pcp_10cm']:.1f}% | {100 * r['pck_10cm']:.1f}% | {r['mpjpe_mm']:.0f} | "
+                     f"{100 * r['pcp_10cm']:.1f}% | {100 * r['pck_10cm']:.1f}% | {100 * r['frames_5cm']:.1f}% | "
+                     f"{r['mpjpe_mm']:.0f} | "
                      f"{r['seconds_median']:.1f} |")
-    return "\n".join(lines) + f"\n\nMachine: {machine}. Symmetric scores (interchangeable links matched).\n"
+    return "\n".join(lines) + (f"\n\nMachine: {machine}. Symmetric scores (interchangeable links matched) but "
+                                "frames@5cm (strict; extra capsules left out).\n")
 
 
 def gl_problem() -> str | None:
@@ -291,6 +322,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--spread", type=float, default=0.3, help="joint spread, fraction of half the range")
     ap.add_argument("--generations", type=int, default=None, help="FitConfig.generations (default: automatic)")
+    ap.add_argument("--capsules", type=int, default=None,
+                    help="capsules per link at most (load_skeleton's max_capsules; default: its default)")
     ap.add_argument("--plots", type=int, default=1, help="overlay plots of the first N views per model (default 1)")
     ap.add_argument("--out", default=os.path.join(ROOT, "experiments", "results", "mujoco_views"),
                     help="folder for images, JSON and the Markdown table")
@@ -308,13 +341,14 @@ def main(argv=None) -> int:
         print(f"{os.path.basename(path)}:", flush=True)
         try:
             records += run_model(os.path.abspath(path), args.views, args.seed, args.spread, config, args.out,
-                                 plots=args.plots)
+                                 plots=args.plots, max_capsules=args.capsules)
         except (jp.JaxposeError, ValueError) as e:  # e.g. a mesh MuJoCo cannot find: the others still run
             print(f"  skipped: {' '.join(str(e).split())[:200]}", flush=True)
     rows = summary(records)
     machine = machine_id()
     write_json(os.path.join(args.out, "mujoco_views.json"),
                {"machine": machine_info(), "config": config.to_dict(), "spread": args.spread, "noise": NOISE,
+                "max_capsules": args.capsules or MAX_CAPSULES,
                 "summary": rows, "views": records})
     table = markdown(rows, machine)
     with open(os.path.join(args.out, "mujoco_views.md"), "w") as f:

@@ -13,7 +13,7 @@ from .errors import ConfigError, DepthError, InputWarning
 from .io.cloud_file import is_cloud_file, load_points, parse_viewpoint, to_sensor_frame
 from .io.depth_file import parse_intrinsics, read_depth
 from .io.fit_result import file_sha256, result_document
-from .io.skeleton_file import load_skeleton, resolve_skeleton_path
+from .io.skeleton_file import ROBOT_EXTENSIONS, load_skeleton, resolve_skeleton_path
 from .objective import Cloud, cloud_spread
 from .search import FitConfig, FitResult, fit_cloud
 from .skeleton import Skeleton
@@ -224,12 +224,22 @@ def scale_warning(skel: Skeleton, cloud: Cloud, source: str) -> str | None:
             "image's depth scale, a point cloud's cloud scale) and the skeleton")
 
 
-def load_fit_skeleton(skeleton: str | Skeleton, search_lengths: bool = False) -> tuple[Skeleton, str | None]:
+def robot_max_capsules(skel_file: str | None, max_capsules: int | None) -> int | None:
+    """The capsules per link a robot file was loaded with (``None``: not a robot file)."""
+    from .io.urdf import MAX_CAPSULES
+
+    if skel_file is None or os.path.splitext(skel_file)[1].lower() not in ROBOT_EXTENSIONS:
+        return None
+    return int(max_capsules or MAX_CAPSULES)
+
+
+def load_fit_skeleton(skeleton: str | Skeleton, search_lengths: bool = False,
+                      max_capsules: int | None = None) -> tuple[Skeleton, str | None]:
     """The skeleton to fit and its file (``None`` for a :class:`Skeleton` object)."""
     if isinstance(skeleton, Skeleton):
         return skeleton, None
     skel_file = resolve_skeleton_path(str(skeleton))
-    return load_skeleton(skel_file, search_lengths=search_lengths), skel_file
+    return load_skeleton(skel_file, search_lengths=search_lengths, max_capsules=max_capsules), skel_file
 
 
 def fit_depth_file(
@@ -241,17 +251,20 @@ def fit_depth_file(
     progress=None,
     search_lengths: bool = False,
     skeleton_file: str | None = None,
+    max_capsules: int | None = None,
 ) -> FitOutput:
     """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth image
     or a point-cloud file (``.ply``, ``.pcd``, ``.xyz``, an ``(N, 3)`` ``.npy``: see
     :mod:`jaxpose.io.cloud_file`; the result is then in the sensor's frame).
 
     ``search_lengths``: for a robot file given by path, search its capsule lengths
-    (see :func:`~jaxpose.io.skeleton_file.load_skeleton`).  ``skeleton_file``: the file a
-    :class:`Skeleton` object was loaded from (:func:`load_fit_skeleton`), for the record."""
+    (see :func:`~jaxpose.io.skeleton_file.load_skeleton`), and ``max_capsules``: model each
+    link by that many capsules at most (default: :data:`~jaxpose.io.urdf.MAX_CAPSULES`).
+    ``skeleton_file``: the file a :class:`Skeleton` object was loaded from
+    (:func:`load_fit_skeleton`), for the record."""
     config.validate()
     options.validate()
-    skel, skel_file = load_fit_skeleton(skeleton, search_lengths)
+    skel, skel_file = load_fit_skeleton(skeleton, search_lengths, max_capsules)
     skel_file = skel_file or skeleton_file
     config = config.for_skeleton(skel)  # the generations the fit runs, also in the result's record
     if is_cloud_file(depth_path):
@@ -274,5 +287,6 @@ def fit_depth_file(
     if frame:
         doc["frame"] = frame
     doc["skeleton"]["search_lengths"] = bool(search_lengths)
+    doc["skeleton"]["max_capsules"] = robot_max_capsules(skel_file, max_capsules)
     doc["warnings"] = notes
     return FitOutput(skel, result, depth, k, doc)

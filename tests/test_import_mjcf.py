@@ -32,7 +32,8 @@ _cache = {}
 def model_and_skeleton(name):
     if name not in _cache:
         m = compile_mjcf(fixture(name))
-        _cache[name] = (m, skeleton_from_model(m, source=fixture(name)))
+        # one capsule per body: these tests check the enclosing capsules (tests/test_capsules.py: several)
+        _cache[name] = (m, skeleton_from_model(m, source=fixture(name), max_capsules=1))
     return _cache[name]
 
 

@@ -97,7 +97,7 @@ def batched_fk(skel, poses):
 
 
 def test_chain_mapping():
-    skel = load_skeleton(fixture("chain"))  # through the dispatcher
+    skel = load_skeleton(fixture("chain"), max_capsules=1)  # through the dispatcher; one capsule per link
     assert skel.name == "chain"
     assert skel.link_names == ("base", "mount", "link1", "sensor", "link2", "tip")
     assert skel.joint_types == ("fixed", "fixed", "hinge", "fixed", "hinge", "fixed")
@@ -112,7 +112,7 @@ def test_chain_mapping():
 
 
 def test_chain_geometry():
-    skel = load_urdf(fixture("chain"))
+    skel = load_urdf(fixture("chain"), max_capsules=1)  # one capsule per link (tests/test_capsules.py: several)
     b = skel.index("base")  # collision box 0.3 x 0.2 x 0.04 (the visual sphere of radius 1 is ignored)
     assert float(skel.length[b]) == pytest.approx(0.3, abs=1e-6)
     assert float(skel.radius[b]) == pytest.approx(np.hypot(0.1, 0.02), abs=1e-6)
@@ -139,7 +139,7 @@ def test_mesh_only_link():
 
 
 def test_search_lengths_option():
-    skel = load_urdf(fixture("arm7"), search_lengths=True)
+    skel = load_urdf(fixture("arm7"), search_lengths=True, max_capsules=1)
     i = skel.index("upper_arm_link")
     np.testing.assert_allclose([skel.length_lo[i], skel.length_hi[i]], [0.21, 0.39], rtol=1e-5)
     w = skel.index("wrist1_link")  # a ball: zero length stays fixed
@@ -148,6 +148,10 @@ def test_search_lengths_option():
     assert sum(n.endswith(".length") for n in names) == 7
     fixed = load_urdf(fixture("arm7"))
     assert not any(n.endswith(".length") for n in genome_layout(fixed).names)
+    # several capsules per link (the default): only the links' own capsules are searched
+    several = load_urdf(fixture("arm7"), search_lengths=True)
+    assert several.num_links > skel.num_links
+    assert sum(n.endswith(".length") for n in genome_layout(several).names) == 7
 
 
 # --------------------------------------------------------------------------- kinematics
@@ -165,8 +169,9 @@ def test_forward_kinematics_matches_numpy_oracle(name):
         q = {joint_of[n]: float(pose.angles[i, 0]) for i, n in enumerate(skel.link_names) if n in joint_of}
         T = oracle_fk(path, q)
         for i, n in enumerate(skel.link_names):
-            np.testing.assert_allclose(links.origin[k, i], T[n][:3, 3], atol=FK_TOL, err_msg=n)
-            np.testing.assert_allclose(links.R_world_link[k, i], T[n][:3, :3], atol=FK_TOL, err_msg=n)
+            link = n.split(U.EXTRA_CAPSULE)[0]  # an extra capsule of a link is in the link's frame
+            np.testing.assert_allclose(links.origin[k, i], T[link][:3, 3], atol=FK_TOL, err_msg=n)
+            np.testing.assert_allclose(links.R_world_link[k, i], T[link][:3, :3], atol=FK_TOL, err_msg=n)
 
 
 @pytest.mark.parametrize("name", ["arm7", "gripper"])
@@ -356,7 +361,7 @@ def test_load_skeleton_search_lengths_for_robot_files_only(tmp_path):
 
 
 def test_prismatic_and_spherical_joints(tmp_path):
-    skel = load_urdf(fixture("gripper"))
+    skel = load_urdf(fixture("gripper"), max_capsules=1)
     assert skel.joint_types == ("fixed", "hinge", "slide", "hinge", "slide", "slide")
     i = skel.index("column")
     np.testing.assert_allclose([skel.angle_lo[i, 0], skel.angle_hi[i, 0]], [-0.05, 0.3], atol=1e-7)  # metres

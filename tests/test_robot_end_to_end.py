@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from jaxpose.cli import main
+from jaxpose.io.urdf import EXTRA_CAPSULE, MAX_CAPSULES
 
 FIXTURES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fixtures")
 TINY = ["--population", "16", "--generations", "10", "--islands", "1", "--no-refine", "--max-points", "256",
@@ -72,7 +73,12 @@ def end_to_end(tmp_path, capsys, skeleton, tree, render_extra=()):
     capsys.readouterr()
     result, truth = json.loads(r.read_text()), json.loads(t.read_text())
 
-    # every link of the file, by name, with its parent, in the file's tree
+    # every link of the file, by name, with its parent, in the file's tree; a link's extra capsules
+    # (several capsules per link, the default for robot files) are fixed links under it
+    extras = {link["name"]: link["parent"] for link in result["links"] if EXTRA_CAPSULE in link["name"]}
+    for name, parent in extras.items():
+        assert parent in tree and name.startswith(parent + EXTRA_CAPSULE), name
+    tree = {**tree, **extras}
     names = [link["name"] for link in result["links"]]
     assert sorted(names) == sorted(tree) and len(set(names)) == len(names)
     for link in result["links"]:
@@ -81,6 +87,7 @@ def end_to_end(tmp_path, capsys, skeleton, tree, render_extra=()):
             assert len(link[key]) == 3 and all(math.isfinite(v) for v in link[key]), (link["name"], key)
         assert math.isfinite(link["radius"]) and link["radius"] >= 0
     assert result["skeleton"]["num_links"] == len(tree)
+    assert result["skeleton"]["max_capsules"] == MAX_CAPSULES  # the default for robot files
     assert sorted(link["name"] for link in truth["links"]) == sorted(tree)
     assert truth["camera"]["intrinsics"]["width"] == 160 and truth["camera"]["intrinsics"]["height"] == 120
 
@@ -133,3 +140,41 @@ def test_search_lengths_flag(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--search-lengths: only for robot files" in err[0], err
     assert not (tmp_path / "r.json").exists()
+
+
+@pytest.mark.parametrize("value, words", [("2", "--max-capsules: only for robot files"),
+                                          ("0", "--max-capsules: must be at least 1")])
+def test_max_capsules_flag_errors(tmp_path, capsys, value, words):
+    """--max-capsules on a native file, or below 1: one clear error before any search, no output."""
+    npy = tmp_path / "d.npy"
+    np.save(npy, np.full((120, 160), 1.5, np.float32))
+    out = tmp_path / "r.json"
+    skeleton = "spider" if value == "2" else os.path.join(FIXTURES, "arm7.urdf")
+    assert main(["fit", str(npy), "--skeleton", skeleton, "--max-capsules", value, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert not out.exists()
+
+
+def test_max_capsules_flag_reaches_the_importer_and_the_record(tmp_path, capsys):
+    """One capsule per link: the URDF's links exactly, recorded in result.json; eval finds the
+    skeleton of either model from the truth's link names."""
+    path = os.path.join(FIXTURES, "gripper.urdf")
+    a, t, r = tmp_path / "a.png", tmp_path / "t.json", tmp_path / "r.json"
+    assert main(["render", "--skeleton", path, "--size", "160x120", "--seed", "1", "--out", str(a),
+                 "--truth", str(t)]) == 0
+    assert main(["fit", str(a), "--skeleton", path, "--intrinsics", str(t), "--max-capsules", "1",
+                 "--out", str(r), *TINY]) == 0
+    capsys.readouterr()
+    result = json.loads(r.read_text())
+    assert result["skeleton"]["max_capsules"] == 1
+    assert {link["name"]: link["parent"] for link in result["links"]} == urdf_tree(path)
+    # the truth was rendered with the default model (extra capsules): a one-capsule result does not match it
+    truth = json.loads(t.read_text())
+    assert any(EXTRA_CAPSULE in link["name"] for link in truth["links"])
+    assert main(["eval", str(r), str(t)]) == 2
+    capsys.readouterr()
+    # the truth against itself: eval loads the skeleton with the extra capsules its names show
+    assert main(["eval", str(t), str(t), "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and json.loads(out)["num_links"] == len(truth["links"])

@@ -25,10 +25,15 @@ def register(sub) -> None:
 def _find_skeleton(explicit, links, truth_path):
     """The skeleton named by ``--skeleton``, else by the truth file (path as given, beside it, or shipped)."""
     from ..errors import JaxposeError
-    from ..io.skeleton_file import load_skeleton
+    from ..io.skeleton_file import ROBOT_EXTENSIONS, load_skeleton, resolve_skeleton_path
+    from ..io.urdf import capsules_named
+
+    def load(path):  # a robot file with the capsules per link the truth's link names show
+        robot = os.path.splitext(resolve_skeleton_path(path))[1].lower() in ROBOT_EXTENSIONS
+        return load_skeleton(path, max_capsules=capsules_named(links.names) if robot else None)
 
     if explicit:
-        return load_skeleton(explicit), None
+        return load(explicit), None
     candidates = []
     if links.skeleton_file:
         beside = os.path.join(os.path.dirname(os.path.abspath(truth_path)), links.skeleton_file)
@@ -37,7 +42,7 @@ def _find_skeleton(explicit, links, truth_path):
         candidates.append(links.skeleton_name)
     for c in candidates:
         try:
-            return load_skeleton(c), None
+            return load(c), None
         except JaxposeError:
             continue
     return None, "no skeleton file found for the truth; symmetric scores equal the strict ones"

@@ -37,6 +37,9 @@ def register(sub) -> None:
     p.add_argument("--far", type=float, default=8.0, help="farthest depth kept, metres (default 8)")
     p.add_argument("--search-lengths", action="store_true",
                    help="robot files (.urdf, MJCF): also search every link length within +-30%% (default: the model's)")
+    p.add_argument("--max-capsules", type=int, default=None, metavar="N",
+                   help="robot files (.urdf, MJCF): model each link by up to N capsules (flat boxes and disks cut "
+                        "into slabs, one capsule per geometry; default 4; 1: one capsule per link)")
     p.add_argument("--background", help="depth images: background depth image to subtract (same size)")
     p.add_argument("--remove-planes", type=int, default=0, metavar="N",
                    help="drop the points of up to N largest planes (a floor, a wall) before fitting; for an "
@@ -236,12 +239,16 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     jobs = outputs(args)
     check_conflicts(args, jobs)
-    if args.search_lengths:
-        from ..io.skeleton_file import ROBOT_EXTENSIONS, resolve_skeleton_path
+    if args.max_capsules is not None and args.max_capsules < 1:
+        raise ConfigError(f"--max-capsules: must be at least 1, got {args.max_capsules}")
+    for flag, given, native in (("--search-lengths", args.search_lengths, "whose links set their own length_range"),
+                                ("--max-capsules", args.max_capsules is not None, "whose links are one capsule each")):
+        if given:
+            from ..io.skeleton_file import ROBOT_EXTENSIONS, resolve_skeleton_path
 
-        if os.path.splitext(resolve_skeleton_path(args.skeleton))[1].lower() not in ROBOT_EXTENSIONS:
-            raise ConfigError(f"--search-lengths: only for robot files (.urdf, MJCF .xml); {args.skeleton} is a "
-                              "native skeleton, whose links set their own length_range")
+            if os.path.splitext(resolve_skeleton_path(args.skeleton))[1].lower() not in ROBOT_EXTENSIONS:
+                raise ConfigError(f"{flag}: only for robot files (.urdf, MJCF .xml); {args.skeleton} is a "
+                                  f"native skeleton, {native}")
     flags = ("--out-dir", "--plots") if args.out_dir else ("--out", "--plot")
     for _, result, plot in jobs:
         check_output_path(result, flags[0])
@@ -252,7 +259,7 @@ def run(args: argparse.Namespace) -> int:
 
         _pyplot()  # fail before the search if matplotlib is missing
     options = depth_options(args)
-    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths)
+    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
     config = config.for_skeleton(skel)  # the generations: the bar's total
     # a mixed batch: the depth-image options (a background) leave the clouds alone
     per_input = {path: dataclasses.replace(options, background=None) if is_cloud_file(path) else options
@@ -267,7 +274,8 @@ def run(args: argparse.Namespace) -> int:
             with warnings.catch_warnings():
                 warnings.showwarning = _show_input_warning
                 out = fit_depth_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
-                                     search_lengths=args.search_lengths, skeleton_file=skel_file)
+                                     search_lengths=args.search_lengths, skeleton_file=skel_file,
+                                     max_capsules=args.max_capsules)
         finally:
             bar.close()  # end the progress line, also before an error message or Ctrl-C
         msg = (f"{label}{out.skeleton.name}: cost {out.document['cost']:.5f}, "

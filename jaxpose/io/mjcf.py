@@ -57,6 +57,11 @@ the body's link gets the one capsule that encloses all of them:
 * ``mesh``: enclosing every vertex of the compiled mesh (MuJoCo reads the file); a body
   of meshes only (16 vertices or more) gets the capsule fitted to their vertices instead
   (:func:`~jaxpose.io.urdf.link_capsule`).
+
+That is the one-capsule model (``max_capsules=1``); by default a body gets up to
+:data:`~jaxpose.io.urdf.MAX_CAPSULES` capsules, one per geom and flat boxes and disks
+cut into slabs (:func:`~jaxpose.io.urdf.link_capsules`), the extra ones as fixed child
+links ``<body>#capsule2``, ...
 """
 
 from __future__ import annotations
@@ -69,7 +74,8 @@ import numpy as np
 from ..errors import SkeletonError
 from ..skeleton import LinkSpec, Pose, Skeleton, build_skeleton
 from .urdf import (
-    box_shape, capsule_shape, ellipsoid_shape, length_range, link_capsule, points_shape, sphere_shape,
+    MAX_CAPSULES, box_shape, capsule_shape, capsule_specs, cylinder_shape, ellipsoid_shape, points_shape,
+    sphere_shape,
 )
 
 _MISSING = "MJCF support needs the 'mujoco' extra: pip install 'jaxpose[mujoco]'"
@@ -100,13 +106,16 @@ def compile_mjcf(path):
         raise SkeletonError(f"{path}: MuJoCo cannot compile the model: {msg}") from None
 
 
-def load_mjcf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0)) -> Skeleton:
+def load_mjcf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0),
+              max_capsules: int = MAX_CAPSULES) -> Skeleton:
     """Read an MJCF file as a :class:`~jaxpose.skeleton.Skeleton` (see the module docstring).
 
     Args:
       path: the MJCF ``.xml`` file.
       search_lengths: also search every capsule length within +-30 % (default: fixed).
       scale_range: search range of the global scale.
+      max_capsules: capsules per body at most (:func:`~jaxpose.io.urdf.link_capsules`); the extra
+        ones are fixed child links named ``body#capsule2``, ...; 1: one capsule per body.
 
     Raises:
       SkeletonError: one message naming the file and the problem (also when the
@@ -114,13 +123,15 @@ def load_mjcf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0)) -> 
     """
     path = str(path)
     model = compile_mjcf(path)
-    return skeleton_from_model(model, source=path, search_lengths=search_lengths, scale_range=scale_range)
+    return skeleton_from_model(model, source=path, search_lengths=search_lengths, scale_range=scale_range,
+                               max_capsules=max_capsules)
 
 
 def skeleton_from_model(model, *, source: str = "<mjcf>", search_lengths: bool = False,
-                        scale_range=(0.5, 2.0), name: str | None = None) -> Skeleton:
+                        scale_range=(0.5, 2.0), name: str | None = None,
+                        max_capsules: int = MAX_CAPSULES) -> Skeleton:
     """Build the skeleton of a compiled ``mujoco.MjModel`` (``source`` names it in errors)."""
-    specs, _, _ = _plan(model, source, search_lengths)
+    specs, _, _ = _plan(model, source, search_lengths, max_capsules=max_capsules)
     if name is None:
         name = bytes(model.names).split(b"\0", 1)[0].decode() or os.path.splitext(os.path.basename(source))[0]
     return build_skeleton(name, specs, scale_range=scale_range, source=source, require_geometry=False)
@@ -185,7 +196,7 @@ def _names(model, count, kind, default):
     return [getattr(model, kind)(i).name or f"{default}{i}" for i in range(count)]
 
 
-def _plan(model, source, search_lengths, geometry=True):
+def _plan(model, source, search_lengths, geometry=True, max_capsules=MAX_CAPSULES):
     """LinkSpecs of the compiled model, ``[(link name, joint id)]`` for every searched joint, and the
     body whose joints are the root pose (``None``: the root frame is the world's)."""
 
@@ -255,8 +266,10 @@ def _plan(model, source, search_lengths, geometry=True):
             else:
                 where = dict(offset=tuple(anchor - prev), rest_matrix=np.eye(3))
             kind = _joint_spec(model, j, reach)
-            geom = _capsule_spec(shapes[b], search_lengths) if on_body else dict(length=0.0, radius=0.0)
+            geom, extras = (capsule_specs(lname, shapes[b], search_lengths, max_capsules) if on_body
+                            else (dict(length=0.0, radius=0.0), []))
             specs.append(LinkSpec(name=lname, parent=parent_link, attach=0.0, **where, **kind, **geom))
+            specs += _unique(extras, taken, fail)
             joint_links.append((lname, j))
             parent_link, prev = lname, anchor
         if not on_body:
@@ -264,9 +277,19 @@ def _plan(model, source, search_lengths, geometry=True):
                 where = dict(offset=tuple(pos), rest_matrix=R)
             else:
                 where = dict(offset=tuple(-prev), rest_matrix=np.eye(3))
-            specs.append(LinkSpec(name=bname, parent=parent_link, attach=0.0, joint="fixed", **where,
-                                  **_capsule_spec(shapes[b], search_lengths)))
+            geom, extras = capsule_specs(bname, shapes[b], search_lengths, max_capsules)
+            specs.append(LinkSpec(name=bname, parent=parent_link, attach=0.0, joint="fixed", **where, **geom))
+            specs += _unique(extras, taken, fail)
     return specs, joint_links, root_body
+
+
+def _unique(extras, taken: set, fail):
+    """The extra capsules' links, their names checked against (and added to) the names ``taken``."""
+    for e in extras:
+        if e.name in taken:
+            fail(f"body {e.parent!r}: the name {e.name!r} of its extra capsule is taken by another link")
+        taken.add(e.name)
+    return extras
 
 
 def _reach(model) -> float:
@@ -299,12 +322,6 @@ def _joint_spec(model, j, reach=None):
     return dict(joint="ball", limits=[[-r, r]] * 3)
 
 
-def _capsule_spec(shapes, search_lengths):
-    start, d, length, radius = link_capsule(shapes)
-    return dict(seg_start=tuple(start), seg_dir=tuple(d), length=length, radius=radius,
-                length_range=length_range(length, search_lengths))
-
-
 def _geometry(model):
     """For every body, the list of :class:`~jaxpose.io.urdf.Shape` of its geoms (body frame)."""
     shapes = [[] for _ in range(model.nbody)]
@@ -319,7 +336,7 @@ def _geometry(model):
         if t == _SPHERE:
             shapes[b].append(sphere_shape(pos, size[0]))
         elif t in (_CAPSULE, _CYLINDER):
-            shapes[b].append(capsule_shape(pos, R, size[0], size[1]))
+            shapes[b].append((cylinder_shape if t == _CYLINDER else capsule_shape)(pos, R, size[0], size[1]))
         elif t == _ELLIPSOID:
             shapes[b].append(ellipsoid_shape(pos, R, size))
         elif t == _BOX:

@@ -27,6 +27,8 @@ import math
 import os
 import tomllib
 
+import numpy as np
+
 from ..errors import SkeletonError
 from ..skeleton import LinkSpec, Skeleton, build_skeleton
 
@@ -62,14 +64,15 @@ MJCF_EXTENSIONS = (".xml", ".mjcf")
 ROBOT_EXTENSIONS = URDF_EXTENSIONS + MJCF_EXTENSIONS  # robot files: lengths fixed unless searched
 
 
-def load_skeleton(path: str, search_lengths: bool = False) -> Skeleton:
+def load_skeleton(path: str, search_lengths: bool = False, max_capsules: int | None = None) -> Skeleton:
     """Read a skeleton from a native ``.toml``/``.json`` file, a ``.urdf`` or an MJCF ``.xml``.
 
     A bare name such as ``"spider"`` loads the shipped skeleton of that name.
     ``search_lengths`` (robot files only) searches every capsule length within
     +-30 % instead of keeping the model's; a native file declares ``length_range``
     per link instead.  Raises :class:`~jaxpose.errors.SkeletonError` naming the file
-    and the problem.
+    and the problem.  ``max_capsules`` (robot files only): capsules per link at most
+    (:func:`~jaxpose.io.urdf.link_capsules`; default :data:`~jaxpose.io.urdf.MAX_CAPSULES`).
     """
     given = str(path)
     path = resolve_skeleton_path(given)
@@ -86,17 +89,24 @@ def load_skeleton(path: str, search_lengths: bool = False) -> Skeleton:
     if size > MAX_SKELETON_BYTES:
         raise SkeletonError(f"{path}: file is {size} bytes, more than the {MAX_SKELETON_BYTES} allowed for a skeleton")
     ext = os.path.splitext(path)[1].lower()
+    if max_capsules is not None and (isinstance(max_capsules, bool) or not isinstance(max_capsules, (int, np.integer))
+                                     or max_capsules < 1):
+        raise SkeletonError(f"{path}: max_capsules must be a whole number >= 1, got {max_capsules!r}")
+    capsules = {} if max_capsules is None else {"max_capsules": int(max_capsules)}
     if ext in URDF_EXTENSIONS:
         from .urdf import load_urdf
 
-        return load_urdf(path, search_lengths=search_lengths)
+        return load_urdf(path, search_lengths=search_lengths, **capsules)
     if ext in MJCF_EXTENSIONS:
         from .mjcf import load_mjcf
 
-        return load_mjcf(path, search_lengths=search_lengths)
+        return load_mjcf(path, search_lengths=search_lengths, **capsules)
     if search_lengths:
         raise SkeletonError(f"{path}: searching lengths is an option for robot files (.urdf, MJCF .xml); "
                             "a native skeleton file sets each link's length_range instead")
+    if max_capsules is not None and max_capsules != 1:
+        raise SkeletonError(f"{path}: several capsules per link is an option for robot files (.urdf, MJCF .xml); "
+                            "a native skeleton file's links are one capsule each")
     try:
         with open(path, "rb") as f:
             raw = f.read(MAX_SKELETON_BYTES + 1)

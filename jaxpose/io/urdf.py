@@ -41,8 +41,12 @@ Geometry.  ``<collision>`` elements are used when a link has any, otherwise its
   largest ``scale`` factor at the geometry's origin; give the link a ``<collision>``
   primitive for a better fit.  A mesh file that is found but unreadable is an error.
 
-A link with several geometries gets one capsule enclosing all of them; a link with
-none keeps length 0 and radius 0 and only takes part in the kinematics.  Lengths
+That is the one-capsule model (``max_capsules=1``), where a link with several
+geometries gets one capsule enclosing all of them.  By default a link gets up to
+:data:`MAX_CAPSULES` capsules (:func:`link_capsules`): one per geometry, flat boxes
+and disks cut into slabs, the extra capsules as fixed child links
+``<link>#capsule2``, ... in the link's frame.  A link with no geometry keeps
+length 0 and radius 0 and only takes part in the kinematics.  Lengths
 and radii are fixed unless ``search_lengths=True``, which searches every non-zero
 capsule length within ``+-LENGTH_SEARCH_FRACTION`` (the capsule grows from its
 start point; child joints do not move).
@@ -82,11 +86,15 @@ class Shape:
     vertices), to which :func:`link_capsule` fits the capsule, or ``None``.
     """
 
-    def __init__(self, centres, radii, axes=(), surface=None):
+    def __init__(self, centres, radii, axes=(), surface=None, split=None, sample=None):
         self.centres = np.asarray(centres, float).reshape(-1, 3)
         self.radii = np.broadcast_to(np.asarray(radii, float), (len(self.centres),)).copy()
         self.axes = np.asarray(axes, float).reshape(-1, 3)
         self.surface = None if surface is None else np.asarray(surface, float).reshape(-1, 3)
+        # boxes and cylinders: ``split(k) -> [Shape] * k``, slabs each one capsule; ``sample(n) -> (points
+        # (n, 3) spread evenly over the surface, its area)``, to judge which capsules follow it closer
+        self.split = split
+        self.sample = sample
 
 
 def sphere_shape(pos, radius) -> Shape:
@@ -100,13 +108,72 @@ def capsule_shape(pos, R, radius, half_length) -> Shape:
     return Shape([pos - half_length * z, pos + half_length * z], [radius, radius], [z])
 
 
+def cylinder_shape(pos, R, radius, half_length) -> Shape:
+    """A cylinder along the local z axis of frame ``(R, pos)``: enclosed by the capsule along its axis
+    (:func:`capsule_shape`), or cut into slabs across its axis (:func:`_slabs`)."""
+    shape = capsule_shape(pos, R, radius, half_length)
+    R, pos = np.asarray(R, float), np.asarray(pos, float)
+    shape.split = lambda k: _slabs(pos, R[:, 0], R[:, 1], R[:, 2], radius, radius, half_length, k, disk=True)
+
+    def sample(n):
+        rng = np.random.default_rng(0)
+        faces, side = 2 * np.pi * radius**2, 4 * np.pi * radius * half_length
+        on_face = rng.uniform(size=n) < faces / max(faces + side, _EPS)
+        rho, phi = radius * np.sqrt(rng.uniform(size=n)), rng.uniform(0, 2 * np.pi, n)
+        rho = np.where(on_face, rho, radius)
+        z = np.where(on_face, np.where(rng.uniform(size=n) < 0.5, 1.0, -1.0), rng.uniform(-1, 1, n)) * half_length
+        return pos + np.stack([rho * np.cos(phi), rho * np.sin(phi), z], 1) @ R.T, faces + side
+
+    shape.sample = sample
+    return shape
+
+
 def box_shape(pos, R, half_sizes) -> Shape:
-    """The eight corners of a box (half sizes along the local axes of frame ``(R, pos)``)."""
+    """The eight corners of a box (half sizes along the local axes of frame ``(R, pos)``), which can be
+    cut into slabs across its middle side (:func:`_slabs`)."""
     R, pos, h = np.asarray(R, float), np.asarray(pos, float), np.abs(np.asarray(half_sizes, float))
     signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
     corners = pos + (signs * h) @ R.T
     order = np.argsort(-h, kind="stable")
-    return Shape(corners, 0.0, R[:, order].T)
+    (a, b, c), (ea, eb, ec) = h[order], R[:, order].T
+
+    def sample(n):
+        rng = np.random.default_rng(0)
+        areas = np.array([h[1] * h[2], h[0] * h[2], h[0] * h[1]] * 2)
+        face = rng.choice(6, n, p=areas / max(areas.sum(), _EPS))
+        u = rng.uniform(-1, 1, (n, 3))
+        u[np.arange(n), face % 3] = np.where(face < 3, 1.0, -1.0)
+        return pos + (u * h) @ R.T, 4.0 * float(areas.sum())
+
+    return Shape(corners, 0.0, R[:, order].T, split=lambda k: _slabs(pos, ea, eb, ec, a, b, c, k), sample=sample)
+
+
+def _slabs(pos, ea, eb, ec, a, b, c, k: int, disk: bool = False) -> list[Shape]:
+    """``k`` slabs side by side across ``eb`` that make up the box of half sizes ``a, b, c`` along
+    ``ea, eb, ec`` centred at ``pos`` or, ``disk``, the disk of radius ``a = b`` in the ``ea, eb`` plane,
+    ``c`` thick (each slab as long as the disk's chord through its middle, so that its capsule ends
+    on the rim).  Each slab is its own capsule (:func:`slab_capsule`)."""
+    edges = np.linspace(-b, b, k + 1)
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        mid = 0.5 * (lo + hi)
+        half = float(np.sqrt(max(a * a - mid * mid, 0.0))) if disk else a
+        out.append(slab_capsule(pos + mid * eb, (ea, eb, ec), (half, 0.5 * (hi - lo), c)))
+    return out
+
+
+def slab_capsule(pos, axes, half_sizes) -> Shape:
+    """The capsule standing in for one slab (a box of ``half_sizes`` along ``axes`` centred at ``pos``):
+    along its longest side, with the radius of a disk as large as its cross-section
+    (``sqrt(4 h2 h3 / pi)``) and the segment ending one radius inside its end faces.  Not an
+    enclosing capsule: one whose caps stick out past the slab's ends by its radius (as an enclosing
+    capsule's must) would put surface where there is none, beside the next slab."""
+    h = np.abs(np.asarray(half_sizes, float))
+    order = np.argsort(-h, kind="stable")
+    h1, h2, h3 = h[order]
+    e = [np.asarray(axes[i], float) for i in order]
+    r = min(float(np.sqrt(4.0 * h2 * h3 / np.pi)), h1)
+    return capsule_shape(pos, np.stack([e[1], e[2], e[0]], 1), r, h1 - r)
 
 
 def ellipsoid_shape(pos, R, radii) -> Shape:
@@ -240,6 +307,104 @@ def link_capsule(shapes: list[Shape]):
     return surface_capsule(surface, start, d, length, radius)
 
 
+def capsule_volume(radius: float, length: float) -> float:
+    return float(np.pi * radius * radius * length + 4.0 / 3.0 * np.pi * radius**3)
+
+
+SURFACE_SAMPLES = 512  # points on a box's or cylinder's surface that judge its capsules
+SPLIT_GAIN = 0.4  # a further slab must bring the shape's surface this much closer (relative)
+
+
+def surface_gap(points, caps) -> float:
+    """Mean distance of ``points`` to the nearest capsule surface, inside or out (as the data term
+    measures it), of capsules ``(seg_start, seg_dir, length, radius)``."""
+    P = np.asarray(points, float)
+    d = [np.abs(_segment_distances(P, np.asarray(a, float), np.asarray(a, float) + length * np.asarray(u, float)) - r)
+         for a, u, length, r in caps]
+    return float(np.mean(np.min(d, axis=0)))
+
+
+def link_capsules(shapes: list[Shape], max_capsules: int = 1) -> list[tuple]:
+    """Up to ``max_capsules`` capsules ``(seg_start, seg_dir, length, radius)`` for one link, the
+    largest first.  One: :func:`link_capsule` of all the shapes.  More: one capsule per shape
+    (:func:`link_capsule` of each: a mesh's is fitted to its surface; a box or cylinder gets the
+    enclosing capsule or, when its surface lies closer to it, the capsule of its cross-section,
+    :func:`slab_capsule`), and what the budget leaves cuts boxes and cylinders into slabs
+    (:attr:`Shape.split`), one slab more at a time where it brings a shape's surface closest to its
+    capsules (:func:`surface_gap` times the shape's area), as long as it brings it at least
+    :data:`SPLIT_GAIN` closer.  A link with more shapes than
+    capsules keeps the largest ``max_capsules - 1`` apart and encloses the rest in one capsule.  A
+    link without geometry: one zero capsule."""
+    shapes = [s for s in shapes if len(s.centres)]
+    if max_capsules <= 1 or not shapes:
+        return [link_capsule(shapes)]
+    if len(shapes) > max_capsules:
+        size = [capsule_volume(c[3], c[2]) for c in map(lambda s: enclosing_capsule([s]), shapes)]
+        order = np.argsort(size, kind="stable")[::-1]
+        groups = [[shapes[i]] for i in order[: max_capsules - 1]] + [[shapes[i] for i in order[max_capsules - 1:]]]
+        return sorted((link_capsule(g) for g in groups), key=lambda c: -capsule_volume(c[3], c[2]))
+    caps = {}  # (shape, pieces) -> capsules
+    error = {}  # (shape, pieces) -> surface gap x area
+
+    def pieces(i, n):
+        if (i, n) not in caps:
+            s = shapes[i]
+            options = [[link_capsule([p]) for p in s.split(n)]] if n > 1 else [[link_capsule([s])]]
+            if n == 1 and s.split is not None:  # one slab: the capsule of its cross-section's disk
+                options.append([link_capsule(s.split(1))])
+            if s.sample is not None:
+                points, area = s.sample(SURFACE_SAMPLES)
+                gaps = [surface_gap(points, c) * area for c in options]
+                k = int(np.argmin(gaps))  # ties: the enclosing capsule
+                options, error[i, n] = [options[k]], gaps[k]
+            caps[i, n] = options[0]
+        return caps[i, n]
+
+    counts = [1] * len(shapes)
+    while sum(counts) < max_capsules:
+        gain = np.zeros(len(shapes))
+        for i, (s, n) in enumerate(zip(shapes, counts)):
+            if s.split is not None and s.sample is not None:
+                pieces(i, n), pieces(i, n + 1)
+                if error[i, n + 1] < (1 - SPLIT_GAIN) * error[i, n]:
+                    gain[i] = error[i, n] - error[i, n + 1]
+        i = int(np.argmax(gain))
+        if not gain[i] > 0:
+            break
+        counts[i] += 1
+    out = [c for i, n in enumerate(counts) for c in pieces(i, n)]
+    return sorted(out, key=lambda c: -capsule_volume(c[3], c[2]))
+
+
+EXTRA_CAPSULE = "#capsule"  # extra capsules of link "arm" are the fixed links "arm#capsule2", ...
+# capsules per link at most, by default (robot files): see link_capsules and docs/experiments.md
+MAX_CAPSULES = 4
+
+
+def capsules_named(names) -> int:
+    """The most capsules a link has in a list of link names (a link and its ``EXTRA_CAPSULE`` links):
+    the ``max_capsules`` that loads a robot file with these names back (1 when there are none)."""
+    counts = [name.rsplit(EXTRA_CAPSULE, 1)[1] for name in names if EXTRA_CAPSULE in name]
+    return max([int(k) for k in counts if k.isdigit()] + [1])
+
+
+def capsule_specs(name: str, shapes: list[Shape], search_lengths: bool, max_capsules: int = 1):
+    """``(geometry fields of link name's LinkSpec, [LinkSpec of its extra capsules])``: the largest of
+    :func:`link_capsules` is the link's own capsule; every further one a zero-DOF child of the link,
+    in its frame (``offset`` 0, ``attach`` 0), named ``name + EXTRA_CAPSULE + k``.  Only the link's own
+    capsule length is searched with ``search_lengths``."""
+    caps = link_capsules(shapes, max_capsules)
+
+    def geom(cap, search):
+        start, d, length, radius = cap
+        return dict(seg_start=tuple(map(float, start)), seg_dir=tuple(map(float, d)), length=float(length),
+                    radius=float(radius), length_range=length_range(length, search))
+
+    extras = [LinkSpec(name=f"{name}{EXTRA_CAPSULE}{k}", parent=name, joint="fixed", offset=(0.0, 0.0, 0.0),
+                       rest_matrix=np.eye(3), attach=0.0, **geom(cap, False)) for k, cap in enumerate(caps[1:], 2)]
+    return geom(caps[0], search_lengths), extras
+
+
 def length_range(length: float, search: bool):
     """The length search range for ``search_lengths``: ``None`` (fixed) or ``+-LENGTH_SEARCH_FRACTION``."""
     if not search or not length > 0:
@@ -250,23 +415,26 @@ def length_range(length: float, search: bool):
 # --------------------------------------------------------------------------- URDF
 
 
-def load_urdf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0)) -> Skeleton:
+def load_urdf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0),
+              max_capsules: int = MAX_CAPSULES) -> Skeleton:
     """Read a URDF file as a :class:`~jaxpose.skeleton.Skeleton` (see the module docstring).
 
     Args:
       path: the ``.urdf`` file.
       search_lengths: also search every capsule length within +-30 % (default: fixed).
       scale_range: search range of the global scale.
+      max_capsules: capsules per link at most (:func:`link_capsules`); the extra ones are fixed
+        child links named ``link#capsule2``, ...; 1: one capsule per link.
 
     Returns:
-      The skeleton; link names are the URDF link names.
+      The skeleton; link names are the URDF link names (and those of extra capsules).
 
     Raises:
       SkeletonError: one message naming the file and the problem.
     """
     path = str(path)
     root = _read_xml(path)
-    specs, name = _urdf_specs(root, path, search_lengths)
+    specs, name = _urdf_specs(root, path, search_lengths, max_capsules)
     return build_skeleton(name, specs, scale_range=scale_range, source=path, require_geometry=False)
 
 
@@ -392,7 +560,8 @@ def _urdf_geometry(link, where, fail, base: str = ".") -> list[Shape]:
         if g.tag == "sphere":
             shapes.append(sphere_shape(pos, abs(need("radius"))))
         elif g.tag in ("cylinder", "capsule"):
-            shapes.append(capsule_shape(pos, R, abs(need("radius")), 0.5 * abs(need("length"))))
+            make = cylinder_shape if g.tag == "cylinder" else capsule_shape
+            shapes.append(make(pos, R, abs(need("radius")), 0.5 * abs(need("length"))))
         elif g.tag == "box":
             shapes.append(box_shape(pos, R, 0.5 * need("size", 3)))
         elif g.tag == "mesh":
@@ -411,7 +580,7 @@ def _urdf_geometry(link, where, fail, base: str = ".") -> list[Shape]:
     return shapes
 
 
-def _urdf_specs(root, path, search_lengths):
+def _urdf_specs(root, path, search_lengths, max_capsules=MAX_CAPSULES):
     def fail(msg):
         raise SkeletonError(f"{path}: {msg}")
 
@@ -494,15 +663,19 @@ def _urdf_specs(root, path, search_lengths):
             seen.add(n)
             n = joint_of_child[n][1]["parent"]
 
-    specs = []
+    specs, extras = [], []
     for name, el in links.items():
-        start, d, length, radius = link_capsule(
-            _urdf_geometry(el, f"link {name!r}", fail, os.path.dirname(os.path.abspath(path))))
-        geom = dict(seg_start=tuple(start), seg_dir=tuple(d), length=length, radius=radius,
-                    length_range=length_range(length, search_lengths))
+        geom, more = capsule_specs(name, _urdf_geometry(el, f"link {name!r}", fail,
+                                                        os.path.dirname(os.path.abspath(path))),
+                                   search_lengths, max_capsules)
         if name in joint_of_child:
             specs.append(LinkSpec(name=name, **joint_of_child[name][1], **geom))
         else:
             specs.append(LinkSpec(name=name, parent=None, joint="fixed", attach=0.0, **geom))
+        extras += more
+    for e in extras:
+        if e.name in links:
+            fail(f"link {e.parent!r}: the name {e.name!r} of its extra capsule is taken by another link")
+    specs += extras
     robot_name = root.get("name") or os.path.splitext(os.path.basename(path))[0]
     return specs, robot_name
