@@ -95,9 +95,7 @@ def frames_score(skel, fit_links, true_R, true_origin) -> float:
     fits of different capsule models of the same robot.  Strict: interchangeable limbs are not
     matched, so a fit turned onto a symmetric copy of the truth (an ant a quarter turn round, its
     legs swapped) scores 0 here while the symmetric PCP counts it right."""
-    from jaxpose.io.urdf import EXTRA_CAPSULE
-
-    keep = [i for i, n in enumerate(skel.link_names) if EXTRA_CAPSULE not in n]
+    keep = [i for i, b in enumerate(skel.bodies) if b == i]
 
     def marks(R, o):
         R, o = np.asarray(R, np.float64)[keep], np.asarray(o, np.float64)[keep]
@@ -315,6 +313,13 @@ def gl_problem() -> str | None:
     return None
 
 
+def _at_least_one(text: str) -> int:
+    n = int(text)
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
+    return n
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", nargs="+", default=MODELS, help="MJCF or URDF files (default: the test fixtures)")
@@ -322,7 +327,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--spread", type=float, default=0.3, help="joint spread, fraction of half the range")
     ap.add_argument("--generations", type=int, default=None, help="FitConfig.generations (default: automatic)")
-    ap.add_argument("--capsules", type=int, default=None,
+    ap.add_argument("--capsules", type=_at_least_one, default=None,
                     help="capsules per link at most (load_skeleton's max_capsules; default: its default)")
     ap.add_argument("--plots", type=int, default=1, help="overlay plots of the first N views per model (default 1)")
     ap.add_argument("--out", default=os.path.join(ROOT, "experiments", "results", "mujoco_views"),
@@ -348,7 +353,7 @@ def main(argv=None) -> int:
     machine = machine_id()
     write_json(os.path.join(args.out, "mujoco_views.json"),
                {"machine": machine_info(), "config": config.to_dict(), "spread": args.spread, "noise": NOISE,
-                "max_capsules": args.capsules or MAX_CAPSULES,
+                "max_capsules": MAX_CAPSULES if args.capsules is None else args.capsules,
                 "summary": rows, "views": records})
     table = markdown(rows, machine)
     with open(os.path.join(args.out, "mujoco_views.md"), "w") as f:

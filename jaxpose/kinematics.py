@@ -130,11 +130,15 @@ def collision_pairs(skel: Skeleton, margin: float) -> CollisionPairs:
     Every pair of links but a link and its parent (they meet at the joint), each with
     ``rho = min(1, d_rest / (margin (r_i + r_j)))``, ``d_rest`` the distance of their
     axes in the rest pose (the skeleton's lengths, scale 1): pairs that overlap there
-    keep the clearance they have.  Works on a traced skeleton (``rho`` is computed).
+    keep the clearance they have.  The extra capsules of a robot file's link count as
+    that link (:attr:`~jaxpose.skeleton.Skeleton.body`): no pair within one body, nor
+    between a body and its parent's.  Works on a traced skeleton (``rho`` is computed).
     """
     L = skel.num_links
-    par = skel.parents
-    ij = np.array([(i, j) for i in range(L) for j in range(i + 1, L) if par[j] != i and par[i] != j], np.int32)
+    body = skel.bodies
+    par = [body[p] if p >= 0 else -1 for p in (skel.parents[b] for b in body)]  # each link's parent body
+    ij = np.array([(i, j) for i in range(L) for j in range(i + 1, L)
+                   if body[i] != body[j] and par[j] != body[i] and par[i] != body[j]], np.int32)
     i, j = ij.reshape(-1, 2).T
     links = forward_kinematics(skel, rest_pose(skel))
     d = segment_distance(links.start[i], links.end[i], links.start[j], links.end[j])

@@ -224,13 +224,17 @@ def scale_warning(skel: Skeleton, cloud: Cloud, source: str) -> str | None:
             "image's depth scale, a point cloud's cloud scale) and the skeleton")
 
 
-def robot_max_capsules(skel_file: str | None, max_capsules: int | None) -> int | None:
-    """The capsules per link a robot file was loaded with (``None``: not a robot file)."""
+def robot_max_capsules(skel_file: str | None, max_capsules: int | None, loaded_here: bool) -> int | None:
+    """The capsules per link at most a robot file was loaded with: ``max_capsules`` if given, else
+    the default when the file was ``loaded_here`` (``None``: not a robot file, or unknown: a
+    :class:`Skeleton` object given without the setting)."""
     from .io.urdf import MAX_CAPSULES
 
     if skel_file is None or os.path.splitext(skel_file)[1].lower() not in ROBOT_EXTENSIONS:
         return None
-    return int(max_capsules or MAX_CAPSULES)
+    if max_capsules is not None:
+        return int(max_capsules)
+    return MAX_CAPSULES if loaded_here else None
 
 
 def load_fit_skeleton(skeleton: str | Skeleton, search_lengths: bool = False,
@@ -259,7 +263,8 @@ def fit_depth_file(
 
     ``search_lengths``: for a robot file given by path, search its capsule lengths
     (see :func:`~jaxpose.io.skeleton_file.load_skeleton`), and ``max_capsules``: model each
-    link by that many capsules at most (default: :data:`~jaxpose.io.urdf.MAX_CAPSULES`).
+    link by that many capsules at most (default: :data:`~jaxpose.io.urdf.MAX_CAPSULES`; for a
+    :class:`Skeleton` object, the setting it was loaded with, for the record only).
     ``skeleton_file``: the file a :class:`Skeleton` object was loaded from
     (:func:`load_fit_skeleton`), for the record."""
     config.validate()
@@ -287,6 +292,6 @@ def fit_depth_file(
     if frame:
         doc["frame"] = frame
     doc["skeleton"]["search_lengths"] = bool(search_lengths)
-    doc["skeleton"]["max_capsules"] = robot_max_capsules(skel_file, max_capsules)
+    doc["skeleton"]["max_capsules"] = robot_max_capsules(skel_file, max_capsules, not isinstance(skeleton, Skeleton))
     doc["warnings"] = notes
     return FitOutput(skel, result, depth, k, doc)

@@ -103,6 +103,9 @@ class Skeleton:
     # every link's symmetry orbit, named by its first link (:func:`jaxpose.symmetry.link_orbits`;
     # set by build_skeleton; () = none known)
     orbit: tuple[int, ...] = field(metadata=dict(static=True), default=())
+    # every link's rigid body, named by the link that carries it: itself, or for an extra capsule of a
+    # robot file's link (a fixed child in its frame) that link; () = every link its own
+    body: tuple[int, ...] = field(metadata=dict(static=True), default=())
 
     @property
     def num_links(self) -> int:
@@ -112,6 +115,11 @@ class Skeleton:
     def levels(self) -> tuple[tuple[int, ...], ...]:
         """Link indices grouped by depth in the tree (roots first)."""
         return _levels(self.parents)
+
+    @property
+    def bodies(self) -> tuple[int, ...]:
+        """Every link's rigid body (:attr:`body`; each link its own when not set)."""
+        return self.body or tuple(range(self.num_links))
 
     @property
     def children(self) -> tuple[tuple[int, ...], ...]:
@@ -315,6 +323,7 @@ class LinkSpec:
     radius: float = 0.0
     seg_start: tuple = (0.0, 0.0, 0.0)
     seg_dir: tuple = (1.0, 0.0, 0.0)
+    body: str | None = None  # an extra capsule of link ``body`` (its parent, a fixed joint in its frame)
 
 
 def build_skeleton(
@@ -371,6 +380,9 @@ def build_skeleton(
             placed.add(l.name)
         pending = [l for l in pending if l.name not in placed]
     index = {l.name: i for i, l in enumerate(order)}
+    for l in links:
+        if l.body is not None and (l.body != l.parent or l.joint != "fixed"):
+            fail(f"an extra capsule of link {l.body!r} must be a fixed child of it", l.name)
 
     lo_s, hi_s = _pair(scale_range, source, None, "scale range", fail)
     if not (lo_s > 0):
@@ -469,6 +481,7 @@ def build_skeleton(
         parents=tuple(index[l.parent] if l.parent is not None else -1 for l in order),
         joint_types=tuple(l.joint for l in order),
         length_searched=tuple(bool(h > l) for l, h in zip(llo, lhi)),
+        body=tuple(index[l.body] if l.body is not None else i for i, l in enumerate(order)),
     )
     from .symmetry import link_orbits  # it needs this module's Skeleton
 

@@ -190,22 +190,77 @@ def test_extra_capsules_are_fixed_children_in_their_links_frame(name):
         np.testing.assert_allclose(origin[i], origin[p], atol=1e-6)
 
 
-def test_gripper_turntable_slabs_are_posed_with_the_turntable():
-    skel = load_skeleton(os.path.join(FIXTURES, "gripper.urdf"), max_capsules=4)
+def test_turntable_slabs_cover_the_disk_the_urdf_poses():
+    """The gripper's turntable (a cylinder 0.16 wide, 0.04 long, 0.02 above its frame), posed by an
+    independent URDF forward kinematics under a tilted root: the turntable's capsules (its own and
+    its extra ones, posed by jaxpose) cover it and their axes lie in its middle plane."""
+    from test_import_urdf import hinge_joint_names, oracle_fk
+
+    path = os.path.join(FIXTURES, "gripper.urdf")
+    skel = load_skeleton(path, max_capsules=4)
     t = skel.index("turntable")
-    caps = [i for i in range(skel.num_links) if i == t or skel.link_names[i].startswith("turntable#")]
-    assert len(caps) > 1  # a cylinder of radius 0.08, 0.04 long: cut into slabs
+    caps = [i for i, b in enumerate(skel.bodies) if b == t]
+    assert len(caps) > 1  # cut into slabs
+    q = {joint: 0.0 for joint in hinge_joint_names(path).values()}
+    q["turn"] = 0.7
+    root_rpy, root_t = np.array([0.3, -0.4, 0.2]), np.array([0.1, 0.2, 0.3])
     pose = rest_pose(skel)
     angles = np.asarray(pose.angles).copy()
-    angles[skel.index("turntable"), 0] = 0.7
-    links = forward_kinematics(skel, pose._replace(angles=angles.astype(np.float32)))
-    # the turntable of the URDF, posed by the oracle: its frame, the cylinder 0.02 above it along z
-    R, o = np.asarray(links.R_world_link[t], float), np.asarray(links.origin[t], float)
-    pts = _disk_points(o + 0.02 * R[:, 2], R, 0.08, 0.02)
+    angles[t, 0] = 0.7
+    pose = pose._replace(angles=angles.astype(np.float32), root_rpy=root_rpy.astype(np.float32),
+                         root_t=root_t.astype(np.float32))
+    links = forward_kinematics(skel, pose)
+    T = oracle_fk(path, q)["turntable"]
+    R_root = U.rpy_matrix(root_rpy)
+    R, o = R_root @ T[:3, :3], R_root @ T[:3, 3] + root_t
+    centre = o + 0.02 * R[:, 2]
+    pts = _disk_points(centre, R, 0.08, 0.02)
     s, e, r = (np.asarray(a, float)[caps] for a in (links.start, links.end, links.radius))
     d = _capsule_distances(pts, [(a, (b - a) / np.linalg.norm(b - a), np.linalg.norm(b - a), rr)
                                  for a, b, rr in zip(s, e, r)])
-    assert np.mean(d.min(1) <= 1e-6) > 0.6
+    assert np.mean(d.min(1) <= 1e-6) > 0.6  # two slabs of the disk's cross-section hold 69% of it
+    local = (np.concatenate([s, e]) - centre) @ R  # the disk's frame
+    assert np.all(np.abs(local[:, 2]) <= 1e-5) and np.all(np.hypot(local[:, 0], local[:, 1]) <= 0.08 + 1e-5)
+
+
+def test_collision_pairs_treat_a_links_capsules_as_that_link():
+    """No collision pair within one link's capsules, nor between them and the parent's or a
+    child's (they meet at the joint): by names and the URDF's tree, against the code's pairs."""
+    from jaxpose.kinematics import collision_pairs
+
+    path = os.path.join(FIXTURES, "quadruped.urdf")
+    skel = load_skeleton(path)
+    assert any(U.EXTRA_CAPSULE in n for n in skel.link_names)
+    import xml.etree.ElementTree as ET
+
+    parent = {j.find("child").get("link"): j.find("parent").get("link")
+              for j in ET.parse(path).getroot().findall("joint")}
+    owner = [n.split(U.EXTRA_CAPSULE)[0] for n in skel.link_names]
+    expected = {(i, j) for i in range(skel.num_links) for j in range(i + 1, skel.num_links)
+                if owner[i] != owner[j] and parent.get(owner[i]) != owner[j] and parent.get(owner[j]) != owner[i]}
+    pairs = collision_pairs(skel, 0.8)
+    assert set(zip(np.asarray(pairs.i).tolist(), np.asarray(pairs.j).tolist())) == expected
+
+
+@pytest.mark.parametrize("size", ["0.2 0 0", "0 0 0", "0.2 0.1 0"])
+def test_degenerate_boxes_load(tmp_path, size):
+    path = tmp_path / "flat.urdf"
+    path.write_text(f"""<robot name="flat">
+  <link name="a"><collision><geometry><box size="{size}"/></geometry></collision></link>
+  <link name="b"><collision><geometry><cylinder radius="0" length="0.1"/></geometry></collision></link>
+  <joint name="j" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1"/></joint>
+</robot>""")
+    skel = load_skeleton(str(path))
+    assert np.all(np.isfinite(np.asarray(skel.length))) and np.all(np.isfinite(np.asarray(skel.radius)))
+
+
+@pytest.mark.parametrize("value", [0, -1, 2.5, True, "4"])
+def test_max_capsules_must_be_a_whole_number_of_at_least_one(value):
+    path = os.path.join(FIXTURES, "gripper.urdf")
+    for load in (lambda: U.load_urdf(path, max_capsules=value), lambda: load_skeleton(path, max_capsules=value)):
+        with pytest.raises(SkeletonError, match="max_capsules must be a whole number >= 1"):
+            load()
 
 
 def test_an_extra_capsule_name_taken_by_a_link_is_one_clear_error(tmp_path):

@@ -90,3 +90,23 @@ def test_several_capsules_per_link_lie_closer_to_what_mujoco_draws(name, seed, r
     default = np.abs(surface_distances(name, seed))
     assert len(default) == len(one) > 300  # the same pixels
     assert np.mean(default) < ratio * np.mean(one)
+
+
+def test_frames_score_counts_links_whose_frame_is_placed_right():
+    """frames@5cm against hand-made truths: itself 1; one link turned a quarter round 5/6 (the
+    gripper's extra capsule shares the turntable's frame and is left out); every origin 6 cm off 0."""
+    from jaxpose.io.skeleton_file import load_skeleton
+    from jaxpose.kinematics import forward_kinematics
+    from jaxpose.skeleton import rest_pose
+
+    skel = load_skeleton(os.path.join(FIXTURES, "gripper.urdf"))
+    assert skel.num_links == 7 and sum(b != i for i, b in enumerate(skel.bodies)) == 1
+    links = forward_kinematics(skel, rest_pose(skel))
+    R, o = np.asarray(links.R_world_link, np.float64), np.asarray(links.origin, np.float64)
+    assert MV.frames_score(skel, links, R, o) == 1.0
+    turned = R.copy()
+    c = skel.index("column")
+    turned[c] = R[c] @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    assert MV.frames_score(skel, links, turned, o) == pytest.approx(5 / 6)
+    assert MV.frames_score(skel, links, R, o + np.array([0.0, 0.06, 0.0])) == 0.0
+    assert MV.frames_score(skel, links, R, o + np.array([0.0, 0.04, 0.0])) == 1.0  # within 5 cm

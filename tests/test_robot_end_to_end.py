@@ -157,8 +157,9 @@ def test_max_capsules_flag_errors(tmp_path, capsys, value, words):
 
 
 def test_max_capsules_flag_reaches_the_importer_and_the_record(tmp_path, capsys):
-    """One capsule per link: the URDF's links exactly, recorded in result.json; eval finds the
-    skeleton of either model from the truth's link names."""
+    """One capsule per link: the URDF's links exactly, recorded in result.json; such a result does
+    not match a truth rendered with the default model (one clear error), and eval finds the default
+    model's skeleton from a truth's link names."""
     path = os.path.join(FIXTURES, "gripper.urdf")
     a, t, r = tmp_path / "a.png", tmp_path / "t.json", tmp_path / "r.json"
     assert main(["render", "--skeleton", path, "--size", "160x120", "--seed", "1", "--out", str(a),
@@ -173,7 +174,8 @@ def test_max_capsules_flag_reaches_the_importer_and_the_record(tmp_path, capsys)
     truth = json.loads(t.read_text())
     assert any(EXTRA_CAPSULE in link["name"] for link in truth["links"])
     assert main(["eval", str(r), str(t)]) == 2
-    capsys.readouterr()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "links do not match" in err[0] and EXTRA_CAPSULE in err[0], err
     # the truth against itself: eval loads the skeleton with the extra capsules its names show
     assert main(["eval", str(t), str(t), "--json"]) == 0
     out, err = capsys.readouterr()

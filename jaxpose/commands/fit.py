@@ -259,7 +259,10 @@ def run(args: argparse.Namespace) -> int:
 
         _pyplot()  # fail before the search if matplotlib is missing
     options = depth_options(args)
+    from ..io.urdf import MAX_CAPSULES
+
     skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
+    capsules = MAX_CAPSULES if args.max_capsules is None else args.max_capsules  # the record (robot files)
     config = config.for_skeleton(skel)  # the generations: the bar's total
     # a mixed batch: the depth-image options (a background) leave the clouds alone
     per_input = {path: dataclasses.replace(options, background=None) if is_cloud_file(path) else options
@@ -275,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
                 warnings.showwarning = _show_input_warning
                 out = fit_depth_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
                                      search_lengths=args.search_lengths, skeleton_file=skel_file,
-                                     max_capsules=args.max_capsules)
+                                     max_capsules=capsules)
         finally:
             bar.close()  # end the progress line, also before an error message or Ctrl-C
         msg = (f"{label}{out.skeleton.name}: cost {out.document['cost']:.5f}, "

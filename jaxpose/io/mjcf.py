@@ -74,8 +74,8 @@ import numpy as np
 from ..errors import SkeletonError
 from ..skeleton import LinkSpec, Pose, Skeleton, build_skeleton
 from .urdf import (
-    MAX_CAPSULES, box_shape, capsule_shape, capsule_specs, cylinder_shape, ellipsoid_shape, points_shape,
-    sphere_shape,
+    MAX_CAPSULES, box_shape, capsule_shape, capsule_specs, check_max_capsules, cylinder_shape, ellipsoid_shape,
+    points_shape, sphere_shape,
 )
 
 _MISSING = "MJCF support needs the 'mujoco' extra: pip install 'jaxpose[mujoco]'"
@@ -122,6 +122,7 @@ def load_mjcf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0),
         ``mujoco`` package is missing or MuJoCo cannot compile the file).
     """
     path = str(path)
+    check_max_capsules(max_capsules, path)
     model = compile_mjcf(path)
     return skeleton_from_model(model, source=path, search_lengths=search_lengths, scale_range=scale_range,
                                max_capsules=max_capsules)
@@ -131,7 +132,7 @@ def skeleton_from_model(model, *, source: str = "<mjcf>", search_lengths: bool =
                         scale_range=(0.5, 2.0), name: str | None = None,
                         max_capsules: int = MAX_CAPSULES) -> Skeleton:
     """Build the skeleton of a compiled ``mujoco.MjModel`` (``source`` names it in errors)."""
-    specs, _, _ = _plan(model, source, search_lengths, max_capsules=max_capsules)
+    specs, _, _ = _plan(model, source, search_lengths, max_capsules=check_max_capsules(max_capsules, source))
     if name is None:
         name = bytes(model.names).split(b"\0", 1)[0].decode() or os.path.splitext(os.path.basename(source))[0]
     return build_skeleton(name, specs, scale_range=scale_range, source=source, require_geometry=False)

@@ -27,8 +27,6 @@ import math
 import os
 import tomllib
 
-import numpy as np
-
 from ..errors import SkeletonError
 from ..skeleton import LinkSpec, Skeleton, build_skeleton
 
@@ -89,10 +87,11 @@ def load_skeleton(path: str, search_lengths: bool = False, max_capsules: int | N
     if size > MAX_SKELETON_BYTES:
         raise SkeletonError(f"{path}: file is {size} bytes, more than the {MAX_SKELETON_BYTES} allowed for a skeleton")
     ext = os.path.splitext(path)[1].lower()
-    if max_capsules is not None and (isinstance(max_capsules, bool) or not isinstance(max_capsules, (int, np.integer))
-                                     or max_capsules < 1):
-        raise SkeletonError(f"{path}: max_capsules must be a whole number >= 1, got {max_capsules!r}")
-    capsules = {} if max_capsules is None else {"max_capsules": int(max_capsules)}
+    if max_capsules is not None:
+        from .urdf import check_max_capsules
+
+        max_capsules = check_max_capsules(max_capsules, path)
+    capsules = {} if max_capsules is None else {"max_capsules": max_capsules}
     if ext in URDF_EXTENSIONS:
         from .urdf import load_urdf
 

@@ -112,6 +112,8 @@ def cylinder_shape(pos, R, radius, half_length) -> Shape:
     """A cylinder along the local z axis of frame ``(R, pos)``: enclosed by the capsule along its axis
     (:func:`capsule_shape`), or cut into slabs across its axis (:func:`_slabs`)."""
     shape = capsule_shape(pos, R, radius, half_length)
+    if not radius > _EPS:  # a line: nothing to cut
+        return shape
     R, pos = np.asarray(R, float), np.asarray(pos, float)
     shape.split = lambda k: _slabs(pos, R[:, 0], R[:, 1], R[:, 2], radius, radius, half_length, k, disk=True)
 
@@ -145,6 +147,8 @@ def box_shape(pos, R, half_sizes) -> Shape:
         u[np.arange(n), face % 3] = np.where(face < 3, 1.0, -1.0)
         return pos + (u * h) @ R.T, 4.0 * float(areas.sum())
 
+    if not b > _EPS:  # a line or a point: nothing to cut, no surface to sample
+        return Shape(corners, 0.0, R[:, order].T)
     return Shape(corners, 0.0, R[:, order].T, split=lambda k: _slabs(pos, ea, eb, ec, a, b, c, k), sample=sample)
 
 
@@ -381,6 +385,14 @@ EXTRA_CAPSULE = "#capsule"  # extra capsules of link "arm" are the fixed links "
 MAX_CAPSULES = 4
 
 
+def check_max_capsules(max_capsules, source: str) -> int:
+    """``max_capsules`` as an int, or one :class:`SkeletonError` naming ``source`` unless it is a
+    whole number >= 1."""
+    if isinstance(max_capsules, bool) or not isinstance(max_capsules, (int, np.integer)) or max_capsules < 1:
+        raise SkeletonError(f"{source}: max_capsules must be a whole number >= 1, got {max_capsules!r}")
+    return int(max_capsules)
+
+
 def capsules_named(names) -> int:
     """The most capsules a link has in a list of link names (a link and its ``EXTRA_CAPSULE`` links):
     the ``max_capsules`` that loads a robot file with these names back (1 when there are none)."""
@@ -401,7 +413,8 @@ def capsule_specs(name: str, shapes: list[Shape], search_lengths: bool, max_caps
                     radius=float(radius), length_range=length_range(length, search))
 
     extras = [LinkSpec(name=f"{name}{EXTRA_CAPSULE}{k}", parent=name, joint="fixed", offset=(0.0, 0.0, 0.0),
-                       rest_matrix=np.eye(3), attach=0.0, **geom(cap, False)) for k, cap in enumerate(caps[1:], 2)]
+                       rest_matrix=np.eye(3), attach=0.0, body=name, **geom(cap, False))
+              for k, cap in enumerate(caps[1:], 2)]
     return geom(caps[0], search_lengths), extras
 
 
@@ -433,6 +446,7 @@ def load_urdf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0),
       SkeletonError: one message naming the file and the problem.
     """
     path = str(path)
+    max_capsules = check_max_capsules(max_capsules, path)
     root = _read_xml(path)
     specs, name = _urdf_specs(root, path, search_lengths, max_capsules)
     return build_skeleton(name, specs, scale_range=scale_range, source=path, require_geometry=False)
