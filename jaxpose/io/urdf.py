@@ -346,7 +346,7 @@ def link_capsules(shapes: list[Shape], max_capsules: int = 1) -> list[tuple]:
         size = [capsule_volume(c[3], c[2]) for c in map(lambda s: enclosing_capsule([s]), shapes)]
         order = np.argsort(size, kind="stable")[::-1]
         groups = [[shapes[i]] for i in order[: max_capsules - 1]] + [[shapes[i] for i in order[max_capsules - 1:]]]
-        return sorted((link_capsule(g) for g in groups), key=lambda c: -capsule_volume(c[3], c[2]))
+        return _largest_first([link_capsule(g) for g in groups])
     caps = {}  # (shape, pieces) -> capsules
     error = {}  # (shape, pieces) -> surface gap x area
 
@@ -376,8 +376,11 @@ def link_capsules(shapes: list[Shape], max_capsules: int = 1) -> list[tuple]:
         if not gain[i] > 0:
             break
         counts[i] += 1
-    out = [c for i, n in enumerate(counts) for c in pieces(i, n)]
-    return sorted(out, key=lambda c: -capsule_volume(c[3], c[2]))
+    return _largest_first([c for i, n in enumerate(counts) for c in pieces(i, n)])
+
+
+def _largest_first(caps: list[tuple]) -> list[tuple]:
+    return sorted(caps, key=lambda c: -capsule_volume(c[3], c[2]))  # stable: ties keep their order
 
 
 EXTRA_CAPSULE = "#capsule"  # extra capsules of link "arm" are the fixed links "arm#capsule2", ...
