@@ -180,3 +180,22 @@ def test_max_capsules_flag_reaches_the_importer_and_the_record(tmp_path, capsys)
     assert main(["eval", str(t), str(t), "--json"]) == 0
     out, err = capsys.readouterr()
     assert err == "" and json.loads(out)["num_links"] == len(truth["links"])
+    # rendered with one capsule per link too, the truth matches the result
+    t1 = tmp_path / "t1.json"
+    assert main(["render", "--skeleton", path, "--size", "160x120", "--seed", "1", "--max-capsules", "1",
+                 "--out", str(tmp_path / "a1.png"), "--truth", str(t1)]) == 0
+    assert {link["name"] for link in json.loads(t1.read_text())["links"]} == set(urdf_tree(path))
+    capsys.readouterr()
+    assert main(["eval", str(r), str(t1), "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and json.loads(out)["num_links"] == len(urdf_tree(path))
+
+
+def test_skeleton_command_lists_the_extra_capsules(capsys):
+    path = os.path.join(FIXTURES, "gripper.urdf")
+    assert main(["skeleton", path]) == 0
+    default = capsys.readouterr().out
+    assert main(["skeleton", path, "--max-capsules", "1"]) == 0
+    one = capsys.readouterr().out
+    assert default.startswith("gripper: 7 links") and "turntable#capsule2" in default
+    assert one.startswith("gripper: 6 links") and EXTRA_CAPSULE not in one

@@ -13,6 +13,7 @@ from ..errors import ConfigError
 from ..objective import ObjectiveConfig
 from ..search import FitConfig
 from .progress import ProgressBar, check_output_path
+from .robot_options import add_max_capsules, check_max_capsules, check_robot_option
 
 MAX_POINTS = 1_000_000
 
@@ -37,9 +38,7 @@ def register(sub) -> None:
     p.add_argument("--far", type=float, default=8.0, help="farthest depth kept, metres (default 8)")
     p.add_argument("--search-lengths", action="store_true",
                    help="robot files (.urdf, MJCF): also search every link length within +-30%% (default: the model's)")
-    p.add_argument("--max-capsules", type=int, default=None, metavar="N",
-                   help="robot files (.urdf, MJCF): model each link by up to N capsules (flat boxes and disks cut "
-                        "into slabs, one capsule per geometry; default 4; 1: one capsule per link)")
+    add_max_capsules(p)
     p.add_argument("--background", help="depth images: background depth image to subtract (same size)")
     p.add_argument("--remove-planes", type=int, default=0, metavar="N",
                    help="drop the points of up to N largest planes (a floor, a wall) before fitting; for an "
@@ -239,16 +238,8 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     jobs = outputs(args)
     check_conflicts(args, jobs)
-    if args.max_capsules is not None and args.max_capsules < 1:
-        raise ConfigError(f"--max-capsules: must be at least 1, got {args.max_capsules}")
-    for flag, given, native in (("--search-lengths", args.search_lengths, "whose links set their own length_range"),
-                                ("--max-capsules", args.max_capsules is not None, "whose links are one capsule each")):
-        if given:
-            from ..io.skeleton_file import ROBOT_EXTENSIONS, resolve_skeleton_path
-
-            if os.path.splitext(resolve_skeleton_path(args.skeleton))[1].lower() not in ROBOT_EXTENSIONS:
-                raise ConfigError(f"{flag}: only for robot files (.urdf, MJCF .xml); {args.skeleton} is a "
-                                  f"native skeleton, {native}")
+    check_max_capsules(args, args.skeleton)
+    check_robot_option("--search-lengths", args.search_lengths, args.skeleton, "whose links set their own length_range")
     flags = ("--out-dir", "--plots") if args.out_dir else ("--out", "--plot")
     for _, result, plot in jobs:
         check_output_path(result, flags[0])

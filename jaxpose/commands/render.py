@@ -6,6 +6,8 @@ import argparse
 import os
 import sys
 
+from .robot_options import add_max_capsules, check_max_capsules
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -17,6 +19,7 @@ def register(sub) -> None:
     )
     p.add_argument("--skeleton", required=True, metavar="FILE",
                    help="skeleton file or shipped name (spider, humanoid, ...)")
+    add_max_capsules(p)
     p.add_argument("--pose", default="random", metavar="POSE",
                    help="'random' (seeded natural pose), 'rest', or a truth/result JSON (default: random)")
     p.add_argument("--seed", type=int, default=0, help="seed of the pose, clutter and sensor noise (default 0)")
@@ -75,7 +78,8 @@ def run(args) -> int:
         for flag2, p2 in outputs[i + 1:]:
             if os.path.abspath(p) == os.path.abspath(p2):
                 raise ConfigError(f"{flag} and {flag2} name the same file {p}")
-    skel = load_skeleton(args.skeleton)
+    check_max_capsules(args, args.skeleton)
+    skel = load_skeleton(args.skeleton, max_capsules=args.max_capsules)
     k = parse_intrinsics(args.intrinsics)
     if not args.size and not (8 <= k.width <= 4096 and 8 <= k.height <= 4096):
         raise ConfigError(f"--intrinsics {args.intrinsics}: image size {k.width}x{k.height} must lie in 8..4096 "

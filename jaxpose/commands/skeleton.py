@@ -2,18 +2,22 @@
 
 from __future__ import annotations
 
+from .robot_options import add_max_capsules, check_max_capsules
+
 
 def register(sub) -> None:
     p = sub.add_parser("skeleton", help="describe a skeleton file (links, DOF, genome layout)")
     p.add_argument("file", help="skeleton file or shipped name (spider, humanoid, arm7, snake)")
     p.add_argument("--genome", action="store_true", help="also list every gene")
+    add_max_capsules(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..io.skeleton_file import load_skeleton
 
-    skel = load_skeleton(args.file)
+    check_max_capsules(args, args.file)
+    skel = load_skeleton(args.file, max_capsules=args.max_capsules)
     layout = skel.layout
     print(f"{skel.name}: {skel.num_links} links, {skel.num_dof} DOF (genome size)")
     for i, n in enumerate(skel.link_names):
