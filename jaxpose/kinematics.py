@@ -13,8 +13,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .objective import CollisionPairs, segment_distance
-from .skeleton import Pose, Skeleton, axis_angle_matrix, rest_pose, rpy_matrix
+from .geometry import axis_angle_matrix, rpy_matrix, segment_distance
+from .objective import CollisionPairs
+from .skeleton import Pose, Skeleton, rest_pose
 
 
 class Links(NamedTuple):

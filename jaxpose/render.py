@@ -48,7 +48,8 @@ import numpy as np
 
 from .camera import KINECT_V1, Intrinsics, project
 from .kinematics import forward_kinematics
-from .skeleton import Pose, Skeleton, rpy_matrix
+from .geometry import matrix_to_rpy, rpy_matrix, segment_distance
+from .skeleton import Pose, Skeleton
 
 
 def pixel_rays(k: Intrinsics) -> jax.Array:
@@ -301,20 +302,6 @@ def orbit_extrinsics(target, elevation_deg: float, azimuth_deg: float, distance:
     return look_at(eye, target)
 
 
-def matrix_to_rpy(R) -> np.ndarray:
-    """Inverse of :func:`~jaxpose.skeleton.rpy_matrix`: ``(roll, pitch, yaw)`` with pitch in [-pi/2, pi/2]."""
-    R = np.asarray(R, np.float64)
-    sp = np.clip(-R[2, 0], -1.0, 1.0)
-    pitch = np.arcsin(sp)
-    if abs(sp) < 1 - 1e-9:
-        roll = np.arctan2(R[2, 1], R[2, 2])
-        yaw = np.arctan2(R[1, 0], R[0, 0])
-    else:  # gimbal lock: only roll -/+ yaw is defined; put it all in yaw
-        roll = 0.0
-        yaw = np.arctan2(-R[0, 1], R[1, 1])
-    return np.array([roll, pitch, yaw])
-
-
 def pose_to_camera(pose: Pose, T_cam_world) -> Pose:
     """The same posed skeleton with its root expressed in the camera frame.
 
@@ -425,30 +412,6 @@ def _apply_sensor(key, z, model: SensorModel):
 _fk = jax.jit(forward_kinematics)
 
 
-def _segment_distance(p1, q1, p2, q2) -> float:
-    """Closest distance between segments ``p1q1`` and ``p2q2`` (NumPy, Ericson's method)."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e, f = d1 @ d1, d2 @ d2, d2 @ r
-    if a <= 1e-12 and e <= 1e-12:
-        return float(np.linalg.norm(r))
-    if a <= 1e-12:
-        s, t = 0.0, np.clip(f / e, 0, 1)
-    else:
-        c = d1 @ r
-        if e <= 1e-12:
-            t, s = 0.0, np.clip(-c / a, 0, 1)
-        else:
-            b = d1 @ d2
-            den = a * e - b * b
-            s = np.clip((b * f - c * e) / den, 0, 1) if den > 1e-12 else 0.0
-            t = (b * s + f) / e
-            if t < 0:
-                t, s = 0.0, np.clip(-c / a, 0, 1)
-            elif t > 1:
-                t, s = 1.0, np.clip((b - c) / a, 0, 1)
-    return float(np.linalg.norm((p1 + d1 * s) - (p2 + d2 * t)))
-
-
 def self_collisions(skel: Skeleton, pose: Pose, tolerance: float = 0.8) -> float:
     """Total interpenetration (metres) of capsules that are not parent/child or siblings.
 
@@ -457,13 +420,15 @@ def self_collisions(skel: Skeleton, pose: Pose, tolerance: float = 0.8) -> float
     links = _fk(skel, pose)
     s, e, r = (np.asarray(a, np.float64) for a in (links.start, links.end, links.radius))
     par = skel.parents
+    pairs = [(i, j) for i in range(skel.num_links) for j in range(i + 1, skel.num_links)
+             if not (par[j] == i or par[i] == j or par[i] == par[j])]
+    if not pairs:
+        return 0.0
+    i, j = np.array(pairs).T
+    gaps = segment_distance(s[i], e[i], s[j], e[j], xp=np) - tolerance * (r[i] + r[j])
     total = 0.0
-    for i in range(skel.num_links):
-        for j in range(i + 1, skel.num_links):
-            if par[j] == i or par[i] == j or par[i] == par[j]:
-                continue
-            gap = _segment_distance(s[i], e[i], s[j], e[j]) - tolerance * (r[i] + r[j])
-            total += max(0.0, -gap)
+    for gap in gaps:  # summed in pair order, one pair at a time
+        total += max(0.0, -float(gap))
     return total
 
 

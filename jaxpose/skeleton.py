@@ -39,37 +39,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .errors import SkeletonError
+from .geometry import axis_angle_matrix  # noqa: F401  # imported by jaxpose/search until it moves
+from .geometry import rpy_matrix
 
 JOINT_DOF = {"ball": 3, "hinge": 1, "slide": 1, "fixed": 0}
 
 # Search range of the root orientation (roll, pitch, yaw), radians.
 ROOT_ANGLE_LIMITS = np.array([[-np.pi, np.pi], [-np.pi / 2, np.pi / 2], [-np.pi, np.pi]])
-
-
-def rpy_matrix(rpy):
-    """Rotation matrix ``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` of ``rpy = (roll, pitch, yaw)``.
-
-    Works on NumPy or JAX arrays of shape ``(..., 3)`` and returns ``(..., 3, 3)``.
-    """
-    xp = jnp if isinstance(rpy, jax.Array) else np
-    r, p, y = rpy[..., 0], rpy[..., 1], rpy[..., 2]
-    cr, sr, cp, sp, cy, sy = xp.cos(r), xp.sin(r), xp.cos(p), xp.sin(p), xp.cos(y), xp.sin(y)
-    row0 = xp.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1)
-    row1 = xp.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1)
-    row2 = xp.stack([-sp, cp * sr, cp * cr], -1)
-    return xp.stack([row0, row1, row2], -2)
-
-
-def axis_angle_matrix(axis, angle):
-    """Rodrigues rotation about unit ``axis`` (``(..., 3)``) by ``angle`` (``(...)``)."""
-    xp = jnp if isinstance(axis, jax.Array) or isinstance(angle, jax.Array) else np
-    x, y, z = axis[..., 0], axis[..., 1], axis[..., 2]
-    c, s = xp.cos(angle), xp.sin(angle)
-    C = 1 - c
-    row0 = xp.stack([c + x * x * C, x * y * C - z * s, x * z * C + y * s], -1)
-    row1 = xp.stack([y * x * C + z * s, c + y * y * C, y * z * C - x * s], -1)
-    row2 = xp.stack([z * x * C - y * s, z * y * C + x * s, c + z * z * C], -1)
-    return xp.stack([row0, row1, row2], -2)
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from jaxpose.errors import SkeletonError
+from jaxpose.geometry import rpy_matrix
 from jaxpose.io import urdf as U
 from jaxpose.io.skeleton_file import load_skeleton
 from jaxpose.kinematics import forward_kinematics
@@ -211,7 +212,7 @@ def test_turntable_slabs_cover_the_disk_the_urdf_poses():
                          root_t=root_t.astype(np.float32))
     links = forward_kinematics(skel, pose)
     T = oracle_fk(path, q)["turntable"]
-    R_root = U.rpy_matrix(root_rpy)
+    R_root = rpy_matrix(root_rpy)
     R, o = R_root @ T[:3, :3], R_root @ T[:3, 3] + root_t
     centre = o + 0.02 * R[:, 2]
     pts = _disk_points(centre, R, 0.08, 0.02)

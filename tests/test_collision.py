@@ -12,7 +12,8 @@ import pytest
 
 from jaxpose.io.skeleton_file import load_skeleton
 from jaxpose.kinematics import collision_pairs, forward_kinematics
-from jaxpose.objective import ObjectiveConfig, collision_cost, observe, population_cost, segment_distance
+from jaxpose.geometry import segment_distance
+from jaxpose.objective import ObjectiveConfig, collision_cost, observe, population_cost
 from jaxpose.skeleton import Pose, rest_pose
 from jaxpose.objective import Cloud
 

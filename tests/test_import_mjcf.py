@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from jaxpose.errors import SkeletonError
+from jaxpose.geometry import quat_to_matrix
 from jaxpose.io.skeleton_file import load_skeleton
 from jaxpose.kinematics import forward_kinematics
 from jaxpose.skeleton import genome_layout
 
 mujoco = pytest.importorskip("mujoco")
-from jaxpose.io.mjcf import compile_mjcf, load_mjcf, pose_from_qpos, quat_to_matrix, skeleton_from_model  # noqa: E402
+from jaxpose.io.mjcf import compile_mjcf, load_mjcf, pose_from_qpos, skeleton_from_model  # noqa: E402
 
 FIXTURES = os.path.join(os.path.dirname(__file__), "fixtures")
 FK_TOL = 1e-5  # metres (positions) and matrix entries (rotations); jaxpose runs in float32

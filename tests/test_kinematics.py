@@ -13,7 +13,8 @@ import pytest
 from jaxpose.errors import SkeletonError
 from jaxpose.io.skeleton_file import load_skeleton, shipped_skeletons
 from jaxpose.kinematics import forward_kinematics
-from jaxpose.skeleton import LinkSpec, Pose, axis_angle_matrix, build_skeleton, rest_pose, rpy_matrix
+from jaxpose.geometry import axis_angle_matrix, rpy_matrix
+from jaxpose.skeleton import LinkSpec, Pose, build_skeleton, rest_pose
 
 from oracles import fk_oracle, pose_dict, rot_axis, rot_x, rot_y, rot_z, rpy, stack_fk
 

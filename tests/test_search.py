@@ -619,7 +619,7 @@ def test_rest_model_spins_about_the_major_axis_of_elongated_models_else_the_norm
 def test_spun_hypotheses_keep_the_spin_axis_and_turn_about_it(name):
     """aligned_root(spin=a) = Rot(cloud axis, a) @ aligned_root(spin=0): the model's spin
     axis stays on the cloud's, and the model's centroid stays on the same spot."""
-    from jaxpose.skeleton import rpy_matrix
+    from jaxpose.geometry import rpy_matrix
 
     skel = skeleton(name)
     links = forward_kinematics(skel, true_pose(skel))

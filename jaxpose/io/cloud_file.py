@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import DepthError
+from ..geometry import quat_to_matrix
 from .depth_file import _short, check_input_file, npy_header
 
 CLOUD_EXTENSIONS = (".ply", ".pcd", ".xyz")
@@ -470,12 +471,7 @@ def to_sensor_frame(points: np.ndarray, viewpoint) -> np.ndarray:
     if tuple(viewpoint) == IDENTITY_VIEWPOINT:
         return np.asarray(points, np.float32)
     t = np.asarray(viewpoint[:3], np.float64)
-    w, x, y, z = np.asarray(viewpoint[3:], np.float64) / np.linalg.norm(viewpoint[3:])
-    r = np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    r = quat_to_matrix(np.asarray(viewpoint[3:], np.float64), xp=np)
     return ((np.asarray(points, np.float64) - t) @ r).astype(np.float32)
 
 

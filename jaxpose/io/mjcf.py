@@ -72,6 +72,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import SkeletonError
+from ..geometry import matrix_to_rpy, quat_to_matrix
 from ..skeleton import LinkSpec, Pose, Skeleton, build_skeleton
 from .urdf import (
     MAX_CAPSULES, box_shape, capsule_shape, capsule_specs, check_max_capsules, cylinder_shape, ellipsoid_shape,
@@ -168,26 +169,6 @@ def pose_from_qpos(skel: Skeleton, model, qpos) -> Pose:
             angles[skel.index(link)] = matrix_to_rpy(quat_to_matrix(qpos[adr : adr + 4]))
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     return Pose(f32(root_t), f32(root_rpy), f32(1.0), f32(angles), f32(skel.length))
-
-
-def quat_to_matrix(q) -> np.ndarray:
-    """Rotation matrix of a MuJoCo quaternion ``(w, x, y, z)`` (normalised first)."""
-    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def matrix_to_rpy(R) -> np.ndarray:
-    """``(roll, pitch, yaw)`` with ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``, pitch in [-pi/2, pi/2]."""
-    R = np.asarray(R, float)
-    pitch = np.arcsin(np.clip(-R[2, 0], -1.0, 1.0))
-    if abs(R[2, 0]) < 1 - 1e-9:
-        return np.array([np.arctan2(R[2, 1], R[2, 2]), pitch, np.arctan2(R[1, 0], R[0, 0])])
-    # gimbal lock: only yaw - roll (or yaw + roll) is defined; put it all in yaw
-    return np.array([0.0, pitch, np.arctan2(-R[0, 1], R[1, 1])])
 
 
 # --------------------------------------------------------------------------- the compiled tree

@@ -67,7 +67,8 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from ..errors import SkeletonError
-from ..skeleton import LinkSpec, Skeleton, build_skeleton, rpy_matrix
+from ..geometry import point_segment_distance, rpy_matrix
+from ..skeleton import LinkSpec, Skeleton, build_skeleton
 
 DEFAULT_MESH_RADIUS = 0.05  # metres: stand-in ball for a mesh that is not read
 LENGTH_SEARCH_FRACTION = 0.3  # search_lengths: lengths vary within +-30 %
@@ -261,12 +262,6 @@ MIN_SURFACE_POINTS = 16  # a mesh with fewer vertices keeps its enclosing capsul
 MAX_SURFACE_POINTS = 3000  # vertices a capsule is fitted to (evenly spaced through the mesh's list)
 
 
-def _segment_distances(P, a, b):
-    ab = b - a
-    t = np.clip(((P - a) @ ab) / max(float(ab @ ab), _EPS), 0.0, 1.0)
-    return np.linalg.norm(P - (a + t[:, None] * ab), axis=1)
-
-
 def surface_capsule(points, start, d, length, radius):
     """The capsule whose surface passes closest to ``points`` (a mesh's vertices), starting from the
     enclosing capsule ``(start, d, length, radius)``: robust least squares (``soft_l1``) on each point's
@@ -284,7 +279,7 @@ def surface_capsule(points, start, d, length, radius):
     # close to a segment running on through it, so without bounds the segment drifts out of the shape
     lo = np.concatenate([np.minimum(a0, b0) - radius] * 2 + [[0.0]])
     hi = np.concatenate([np.maximum(a0, b0) + radius] * 2 + [[1.05 * radius]])
-    sol = least_squares(lambda x: _segment_distances(P, x[:3], x[3:6]) - x[6], x0, bounds=(lo, hi),
+    sol = least_squares(lambda x: point_segment_distance(P, x[:3], x[3:6], xp=np) - x[6], x0, bounds=(lo, hi),
                         loss="soft_l1", f_scale=max(0.1 * radius, 1e-4), max_nfev=300)
     a, b, r = sol.x[:3], sol.x[3:6], float(sol.x[6])
     L = float(np.linalg.norm(b - a))
@@ -323,7 +318,8 @@ def surface_gap(points, caps) -> float:
     """Mean distance of ``points`` to the nearest capsule surface, inside or out (as the data term
     measures it), of capsules ``(seg_start, seg_dir, length, radius)``."""
     P = np.asarray(points, float)
-    d = [np.abs(_segment_distances(P, np.asarray(a, float), np.asarray(a, float) + length * np.asarray(u, float)) - r)
+    d = [np.abs(point_segment_distance(P, np.asarray(a, float), np.asarray(a, float) + length * np.asarray(u, float), xp=np)
+               - r)
          for a, u, length, r in caps]
     return float(np.mean(np.min(d, axis=0)))
 
