@@ -38,7 +38,7 @@ import numpy as np  # noqa: E402
 
 import jaxpose as jp  # noqa: E402
 from jaxpose.io.results import write_json  # noqa: E402
-from jaxpose.io.urdf import MAX_CAPSULES  # noqa: E402
+from jaxpose.io.capsules import MAX_CAPSULES  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FIXTURES = os.path.join(ROOT, "tests", "fixtures")

@@ -228,7 +228,7 @@ def robot_max_capsules(skel_file: str | None, max_capsules: int | None, loaded_h
     """The capsules per link at most a robot file was loaded with: ``max_capsules`` if given, else
     the default when the file was ``loaded_here`` (``None``: not a robot file, or unknown: a
     :class:`Skeleton` object given without the setting)."""
-    from .io.urdf import MAX_CAPSULES
+    from .io.capsules import MAX_CAPSULES
 
     if skel_file is None or os.path.splitext(skel_file)[1].lower() not in ROBOT_EXTENSIONS:
         return None
@@ -263,7 +263,7 @@ def fit_depth_file(
 
     ``search_lengths``: for a robot file given by path, search its capsule lengths
     (see :func:`~jaxpose.io.skeleton_file.load_skeleton`), and ``max_capsules``: model each
-    link by that many capsules at most (default: :data:`~jaxpose.io.urdf.MAX_CAPSULES`; for a
+    link by that many capsules at most (default: :data:`~jaxpose.io.capsules.MAX_CAPSULES`; for a
     :class:`Skeleton` object, the setting it was loaded with, for the record only).
     ``skeleton_file``: the file a :class:`Skeleton` object was loaded from
     (:func:`load_fit_skeleton`), for the record."""

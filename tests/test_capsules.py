@@ -10,7 +10,8 @@ import pytest
 
 from jaxpose.errors import SkeletonError
 from jaxpose.geometry import rpy_matrix
-from jaxpose.io import urdf as U
+from jaxpose.io import capsules as C
+from jaxpose.io.urdf import load_urdf
 from jaxpose.io.skeleton_file import load_skeleton
 from jaxpose.kinematics import forward_kinematics
 from jaxpose.skeleton import genome_layout, rest_pose
@@ -62,13 +63,13 @@ def _ends(caps):
 
 
 def _slab_capsules(shape, k):
-    return [U.link_capsule([p]) for p in shape.split(k)]
+    return [C.link_capsule([p]) for p in shape.split(k)]
 
 
 @pytest.mark.parametrize("k", [2, 4, 6])
 def test_box_slabs_lie_side_by_side_and_end_at_its_end_faces(k):
     pos, R, half = np.array([0.2, 0.0, -0.1]), _rotation(4), np.array([0.15, 0.1, 0.015])
-    box = U.box_shape(pos, R, half)
+    box = C.box_shape(pos, R, half)
     caps = _slab_capsules(box, k)
     assert len(caps) == k
     # the segments run along the box's longest side, side by side across its middle one
@@ -85,7 +86,7 @@ def test_box_slabs_lie_side_by_side_and_end_at_its_end_faces(k):
 @pytest.mark.parametrize("k", [2, 4])
 def test_disk_slabs_end_on_its_rim(k):
     pos, R, radius, half_height = np.array([0.0, 0.1, 0.0]), _rotation(2), 0.08, 0.02
-    caps = _slab_capsules(U.cylinder_shape(pos, R, radius, half_height), k)
+    caps = _slab_capsules(C.cylinder_shape(pos, R, radius, half_height), k)
     assert len(caps) == k
     local = (_ends(caps) - pos) @ R
     np.testing.assert_allclose(local[:, :, 2], 0.0, atol=1e-9)  # in the disk's middle plane
@@ -99,7 +100,7 @@ def test_shape_samples_lie_on_the_surface_and_cover_it(kind):
     pos, R = np.array([0.1, 0.2, 0.3]), _rotation(5)
     if kind == "box":
         half = np.array([0.15, 0.1, 0.015])
-        pts, area = U.box_shape(pos, R, half).sample(2000)
+        pts, area = C.box_shape(pos, R, half).sample(2000)
         local = np.abs((pts - pos) @ R) / half
         assert np.allclose(local.max(1), 1.0) and np.all(local <= 1 + 1e-9)
         assert area == pytest.approx(8 * (0.15 * 0.1 + 0.1 * 0.015 + 0.15 * 0.015))
@@ -108,7 +109,7 @@ def test_shape_samples_lie_on_the_surface_and_cover_it(kind):
         np.testing.assert_allclose(on_face.mean(0), expected / expected.sum(), atol=0.03)
     else:
         radius, hh = 0.08, 0.02
-        pts, area = U.cylinder_shape(pos, R, radius, hh).sample(2000)
+        pts, area = C.cylinder_shape(pos, R, radius, hh).sample(2000)
         local = (pts - pos) @ R
         rho, z = np.hypot(local[:, 0], local[:, 1]), local[:, 2]
         on_side = np.isclose(rho, radius)
@@ -121,48 +122,48 @@ def test_shape_samples_lie_on_the_surface_and_cover_it(kind):
 @pytest.mark.parametrize("budget", [2, 4])
 def test_capsules_of_a_box_follow_its_surface_at_least_as_close_as_one(half, budget):
     pos, R = np.array([0.2, 0.0, -0.1]), _rotation(4)
-    box = U.box_shape(pos, R, half)
-    caps = U.link_capsules([box], budget)
+    box = C.box_shape(pos, R, half)
+    caps = C.link_capsules([box], budget)
     assert 1 <= len(caps) <= budget
     surface = _box_surface(pos, R, np.asarray(half))  # an independent sample of the surface
     gap = np.mean(np.abs(_capsule_distances(surface, caps).min(1)))
-    assert gap <= np.mean(np.abs(_capsule_distances(surface, U.link_capsules([box], 1)).min(1))) + 1e-9
-    volumes = [U.capsule_volume(c[3], c[2]) for c in caps]
+    assert gap <= np.mean(np.abs(_capsule_distances(surface, C.link_capsules([box], 1)).min(1))) + 1e-9
+    volumes = [C.capsule_volume(c[3], c[2]) for c in caps]
     assert volumes == sorted(volumes, reverse=True)  # the largest first: the link's own capsule
 
 
 def test_a_flat_box_and_a_flat_disk_are_cut_a_rod_is_not():
-    plate = U.box_shape(np.zeros(3), np.eye(3), (0.15, 0.1, 0.015))
-    disk = U.cylinder_shape(np.zeros(3), np.eye(3), 0.08, 0.02)
-    rod = U.cylinder_shape(np.zeros(3), np.eye(3), 0.02, 0.2)
-    assert len(U.link_capsules([plate], 4)) > 1 and len(U.link_capsules([disk], 4)) > 1
-    [cap] = U.link_capsules([rod], 4)
-    for a, b in zip(cap, U.link_capsule([rod])):  # a rod keeps its exact enclosing capsule
+    plate = C.box_shape(np.zeros(3), np.eye(3), (0.15, 0.1, 0.015))
+    disk = C.cylinder_shape(np.zeros(3), np.eye(3), 0.08, 0.02)
+    rod = C.cylinder_shape(np.zeros(3), np.eye(3), 0.02, 0.2)
+    assert len(C.link_capsules([plate], 4)) > 1 and len(C.link_capsules([disk], 4)) > 1
+    [cap] = C.link_capsules([rod], 4)
+    for a, b in zip(cap, C.link_capsule([rod])):  # a rod keeps its exact enclosing capsule
         np.testing.assert_allclose(a, b)
     surface = _box_surface(np.zeros(3), np.eye(3), np.array([0.15, 0.1, 0.015]))
-    gap = np.mean(np.abs(_capsule_distances(surface, U.link_capsules([plate], 4)).min(1)))
-    assert gap < 0.5 * np.mean(np.abs(_capsule_distances(surface, U.link_capsules([plate], 1)).min(1)))
+    gap = np.mean(np.abs(_capsule_distances(surface, C.link_capsules([plate], 4)).min(1)))
+    assert gap < 0.5 * np.mean(np.abs(_capsule_distances(surface, C.link_capsules([plate], 1)).min(1)))
 
 
 def test_one_capsule_is_the_link_capsule():
-    shapes = [U.box_shape(np.zeros(3), np.eye(3), (0.1, 0.3, 0.02)), U.sphere_shape(np.array([0.3, 0, 0]), 0.05)]
-    [one] = U.link_capsules(shapes, 1)
-    for a, b in zip(one, U.link_capsule(shapes)):
+    shapes = [C.box_shape(np.zeros(3), np.eye(3), (0.1, 0.3, 0.02)), C.sphere_shape(np.array([0.3, 0, 0]), 0.05)]
+    [one] = C.link_capsules(shapes, 1)
+    for a, b in zip(one, C.link_capsule(shapes)):
         np.testing.assert_array_equal(a, b)
 
 
 def test_more_shapes_than_capsules_keeps_the_largest_apart():
-    big = U.box_shape(np.zeros(3), np.eye(3), (0.3, 0.05, 0.05))
-    small = [U.sphere_shape(np.array([0.0, 0.2 + 0.05 * i, 0.0]), 0.02) for i in range(3)]
-    caps = U.link_capsules([small[0], big, small[1], small[2]], 2)
+    big = C.box_shape(np.zeros(3), np.eye(3), (0.3, 0.05, 0.05))
+    small = [C.sphere_shape(np.array([0.0, 0.2 + 0.05 * i, 0.0]), 0.02) for i in range(3)]
+    caps = C.link_capsules([small[0], big, small[1], small[2]], 2)
     assert len(caps) == 2
-    np.testing.assert_allclose(caps[0][2:], U.enclosing_capsule([big])[2:])  # the box alone
+    np.testing.assert_allclose(caps[0][2:], C.enclosing_capsule([big])[2:])  # the box alone
     ends = np.array([s.centres[0] for s in small])
     assert np.all(_capsule_distances(ends, caps[1:]).min(1) <= -0.02 + 1e-9)  # the balls in the other one
 
 
 def _extras(skel):
-    return [i for i, n in enumerate(skel.link_names) if U.EXTRA_CAPSULE in n]
+    return [i for i, n in enumerate(skel.link_names) if C.EXTRA_CAPSULE in n]
 
 
 @pytest.mark.parametrize("name", ["gripper.urdf", "gadget.xml"])
@@ -177,7 +178,7 @@ def test_extra_capsules_are_fixed_children_in_their_links_frame(name):
     assert genome_layout(four).size == genome_layout(one).size  # no new degrees of freedom
     for i in extras:
         parent = four.link_names[four.parents[i]]
-        assert four.link_names[i].startswith(parent + U.EXTRA_CAPSULE) and four.joint_types[i] == "fixed"
+        assert four.link_names[i].startswith(parent + C.EXTRA_CAPSULE) and four.joint_types[i] == "fixed"
     # every link but the extras keeps its frame; an extra capsule moves with its link
     pose = rest_pose(four)
     rng = np.random.default_rng(0)
@@ -231,12 +232,12 @@ def test_collision_pairs_treat_a_links_capsules_as_that_link():
 
     path = os.path.join(FIXTURES, "quadruped.urdf")
     skel = load_skeleton(path)
-    assert any(U.EXTRA_CAPSULE in n for n in skel.link_names)
+    assert any(C.EXTRA_CAPSULE in n for n in skel.link_names)
     import xml.etree.ElementTree as ET
 
     parent = {j.find("child").get("link"): j.find("parent").get("link")
               for j in ET.parse(path).getroot().findall("joint")}
-    owner = [n.split(U.EXTRA_CAPSULE)[0] for n in skel.link_names]
+    owner = [n.split(C.EXTRA_CAPSULE)[0] for n in skel.link_names]
     expected = {(i, j) for i in range(skel.num_links) for j in range(i + 1, skel.num_links)
                 if owner[i] != owner[j] and parent.get(owner[i]) != owner[j] and parent.get(owner[j]) != owner[i]}
     pairs = collision_pairs(skel, 0.8)
@@ -259,7 +260,7 @@ def test_degenerate_boxes_load(tmp_path, size):
 @pytest.mark.parametrize("value", [0, -1, 2.5, True, "4"])
 def test_max_capsules_must_be_a_whole_number_of_at_least_one(value):
     path = os.path.join(FIXTURES, "gripper.urdf")
-    for load in (lambda: U.load_urdf(path, max_capsules=value), lambda: load_skeleton(path, max_capsules=value)):
+    for load in (lambda: load_urdf(path, max_capsules=value), lambda: load_skeleton(path, max_capsules=value)):
         with pytest.raises(SkeletonError, match="max_capsules must be a whole number >= 1"):
             load()
 

@@ -11,7 +11,7 @@ import pytest
 
 from jaxpose.errors import SkeletonError
 from jaxpose.io.skeleton_file import load_skeleton
-from jaxpose.io import urdf as U
+from jaxpose.io import capsules as C
 from jaxpose.io.urdf import DEFAULT_MESH_RADIUS, load_urdf
 from jaxpose.kinematics import forward_kinematics
 from jaxpose.skeleton import Pose, genome_layout
@@ -169,7 +169,7 @@ def test_forward_kinematics_matches_numpy_oracle(name):
         q = {joint_of[n]: float(pose.angles[i, 0]) for i, n in enumerate(skel.link_names) if n in joint_of}
         T = oracle_fk(path, q)
         for i, n in enumerate(skel.link_names):
-            link = n.split(U.EXTRA_CAPSULE)[0]  # an extra capsule of a link is in the link's frame
+            link = n.split(C.EXTRA_CAPSULE)[0]  # an extra capsule of a link is in the link's frame
             np.testing.assert_allclose(links.origin[k, i], T[link][:3, 3], atol=FK_TOL, err_msg=n)
             np.testing.assert_allclose(links.R_world_link[k, i], T[link][:3, :3], atol=FK_TOL, err_msg=n)
 
@@ -401,5 +401,5 @@ def test_a_mesh_link_gets_the_capsule_fitted_to_its_surface(tmp_path):
     ends = sorted([s, s + L * d], key=lambda p: float(p @ axis))
     np.testing.assert_allclose(ends, [a, b], atol=1e-3)
     assert float(skel.radius[i]) == pytest.approx(r, abs=1e-3)
-    assert U.enclosing_capsule([U.points_shape(v)])[3] > r + 0.01  # what enclosing would have given
+    assert C.enclosing_capsule([C.points_shape(v)])[3] > r + 0.01  # what enclosing would have given
     # a mesh of fewer than 16 vertices keeps the enclosing capsule (test_mesh_files_are_read_and_enclosed)

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from jaxpose.cli import main
-from jaxpose.io.urdf import EXTRA_CAPSULE, MAX_CAPSULES
+from jaxpose.io.capsules import EXTRA_CAPSULE, MAX_CAPSULES
 
 FIXTURES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fixtures")
 TINY = ["--population", "16", "--generations", "10", "--islands", "1", "--no-refine", "--max-points", "256",

@@ -26,7 +26,7 @@ def _find_skeleton(explicit, links, truth_path):
     """The skeleton named by ``--skeleton``, else by the truth file (path as given, beside it, or shipped)."""
     from ..errors import JaxposeError
     from ..io.skeleton_file import ROBOT_EXTENSIONS, load_skeleton, resolve_skeleton_path
-    from ..io.urdf import capsules_named
+    from ..io.capsules import capsules_named
 
     def load(path):  # a robot file with the capsules per link the truth's link names show
         robot = os.path.splitext(resolve_skeleton_path(path))[1].lower() in ROBOT_EXTENSIONS

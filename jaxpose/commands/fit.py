@@ -250,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
 
         _pyplot()  # fail before the search if matplotlib is missing
     options = depth_options(args)
-    from ..io.urdf import MAX_CAPSULES
+    from ..io.capsules import MAX_CAPSULES
 
     skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
     capsules = MAX_CAPSULES if args.max_capsules is None else args.max_capsules  # the record (robot files)

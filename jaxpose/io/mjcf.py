@@ -40,12 +40,12 @@ slides, hinges, a ball): then the body's frame is the searched root frame and it
 joints are not searched separately, as they would only repeat the root's degrees
 of freedom (the body's ``pos``/``quat`` go into the root pose too).  A free body may
 not share the world with other top-level bodies.  With ``search_lengths`` the
-ranges are as in :mod:`jaxpose.io.urdf`.  Equality
+ranges are as in :mod:`jaxpose.io.capsules`.  Equality
 constraints, tendons, sites, actuators and the world body's own geoms (floors)
 are ignored.
 
 Geometry.  Every geom of a body except planes, height fields and SDFs is turned
-into balls enclosing it (:mod:`jaxpose.io.urdf` explains the construction), and
+into balls enclosing it (:mod:`jaxpose.io.capsules` explains the construction), and
 the body's link gets the one capsule that encloses all of them:
 
 * ``capsule``: exact (MuJoCo's capsule runs along the geom's z axis, ``size[0]`` the
@@ -56,11 +56,11 @@ the body's link gets the one capsule that encloses all of them:
   half-diagonal of the two others as radius;
 * ``mesh``: enclosing every vertex of the compiled mesh (MuJoCo reads the file); a body
   of meshes only (16 vertices or more) gets the capsule fitted to their vertices instead
-  (:func:`~jaxpose.io.urdf.link_capsule`).
+  (:func:`~jaxpose.io.capsules.link_capsule`).
 
 That is the one-capsule model (``max_capsules=1``); by default a body gets up to
-:data:`~jaxpose.io.urdf.MAX_CAPSULES` capsules, one per geom and flat boxes and disks
-cut into slabs (:func:`~jaxpose.io.urdf.link_capsules`), the extra ones as fixed child
+:data:`~jaxpose.io.capsules.MAX_CAPSULES` capsules, one per geom and flat boxes and disks
+cut into slabs (:func:`~jaxpose.io.capsules.link_capsules`), the extra ones as fixed child
 links ``<body>#capsule2``, ...
 """
 
@@ -74,7 +74,7 @@ import numpy as np
 from ..errors import SkeletonError
 from ..geometry import matrix_to_rpy, quat_to_matrix
 from ..skeleton import LinkSpec, Pose, Skeleton, build_skeleton
-from .urdf import (
+from .capsules import (
     MAX_CAPSULES, box_shape, capsule_shape, capsule_specs, check_max_capsules, cylinder_shape, ellipsoid_shape,
     points_shape, sphere_shape,
 )
@@ -115,7 +115,7 @@ def load_mjcf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0),
       path: the MJCF ``.xml`` file.
       search_lengths: also search every capsule length within +-30 % (default: fixed).
       scale_range: search range of the global scale.
-      max_capsules: capsules per body at most (:func:`~jaxpose.io.urdf.link_capsules`); the extra
+      max_capsules: capsules per body at most (:func:`~jaxpose.io.capsules.link_capsules`); the extra
         ones are fixed child links named ``body#capsule2``, ...; 1: one capsule per body.
 
     Raises:
@@ -305,7 +305,7 @@ def _joint_spec(model, j, reach=None):
 
 
 def _geometry(model):
-    """For every body, the list of :class:`~jaxpose.io.urdf.Shape` of its geoms (body frame)."""
+    """For every body, the list of :class:`~jaxpose.io.capsules.Shape` of its geoms (body frame)."""
     shapes = [[] for _ in range(model.nbody)]
     for g in range(model.ngeom):
         b = int(model.geom_bodyid[g])

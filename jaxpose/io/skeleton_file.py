@@ -70,7 +70,7 @@ def load_skeleton(path: str, search_lengths: bool = False, max_capsules: int | N
     +-30 % instead of keeping the model's; a native file declares ``length_range``
     per link instead.  Raises :class:`~jaxpose.errors.SkeletonError` naming the file
     and the problem.  ``max_capsules`` (robot files only): capsules per link at most
-    (:func:`~jaxpose.io.urdf.link_capsules`; default :data:`~jaxpose.io.urdf.MAX_CAPSULES`).
+    (:func:`~jaxpose.io.capsules.link_capsules`; default :data:`~jaxpose.io.capsules.MAX_CAPSULES`).
     """
     given = str(path)
     path = resolve_skeleton_path(given)
@@ -88,7 +88,7 @@ def load_skeleton(path: str, search_lengths: bool = False, max_capsules: int | N
         raise SkeletonError(f"{path}: file is {size} bytes, more than the {MAX_SKELETON_BYTES} allowed for a skeleton")
     ext = os.path.splitext(path)[1].lower()
     if max_capsules is not None:
-        from .urdf import check_max_capsules
+        from .capsules import check_max_capsules
 
         max_capsules = check_max_capsules(max_capsules, path)
     capsules = {} if max_capsules is None else {"max_capsules": max_capsules}
