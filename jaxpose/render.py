@@ -47,8 +47,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .camera import KINECT_V1, Intrinsics, project
-from .kinematics import forward_kinematics
 from .geometry import matrix_to_rpy, rpy_matrix, segment_distance
+from .kinematics import forward_kinematics
 from .skeleton import Pose, Skeleton
 
 

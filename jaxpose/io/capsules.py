@@ -277,9 +277,10 @@ def surface_gap(points, caps) -> float:
     """Mean distance of ``points`` to the nearest capsule surface, inside or out (as the data term
     measures it), of capsules ``(seg_start, seg_dir, length, radius)``."""
     P = np.asarray(points, float)
-    d = [np.abs(point_segment_distance(P, np.asarray(a, float), np.asarray(a, float) + length * np.asarray(u, float), xp=np)
-               - r)
-         for a, u, length, r in caps]
+    d = []
+    for a, u, length, r in caps:
+        a = np.asarray(a, float)
+        d.append(np.abs(point_segment_distance(P, a, a + length * np.asarray(u, float), xp=np) - r))
     return float(np.mean(np.min(d, axis=0)))
 
 
