@@ -281,7 +281,7 @@ FK_CHUNK = 256
 def posed_capsules(skel, bounds, genomes: np.ndarray):
     """``(start, end, radius)`` of genomes ``(M, D)`` in ``[0, 1]``: decode + FK, in chunks of ``FK_CHUNK``."""
     from jaxpose.kinematics import forward_kinematics
-    from jaxpose.skeleton import decode
+    from jaxpose.genome import decode
 
     key = skel.name
     if key not in _FK_CACHE:
@@ -304,7 +304,7 @@ def make_problem(L: int, N: int, P: int, seed: int = 0) -> dict:
     random pose ~2 m in front of the camera, and a population of ``P`` random poses of the same
     skeleton around it.  The cost has no data-dependent branches, so only the sizes matter
     for speed; realistic geometry keeps the agreement check meaningful."""
-    from jaxpose.skeleton import genome_bounds, genome_layout
+    from jaxpose.genome import genome_bounds, genome_layout
 
     name = SKELETONS[L]
     skel = get_skeleton(name)
@@ -702,7 +702,7 @@ def fit_traced(skel, config, cloud, key):
 
 def _links_of(skel):
     from jaxpose.kinematics import forward_kinematics
-    from jaxpose.skeleton import decode
+    from jaxpose.genome import decode
 
     @jax.jit
     def links(bounds, genome):

@@ -54,7 +54,7 @@ from jaxpose.objective import (
 )
 from jaxpose.pipeline import load_observation
 from jaxpose.search.fit import FitConfig, search_epoch, search_init
-from jaxpose.skeleton import decode
+from jaxpose.genome import decode
 
 POINTS = (1024, 4096, 16384)
 kernel = jax.jit(data_cost)

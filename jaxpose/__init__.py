@@ -2,8 +2,8 @@
 
 The pure functional core (usable inside your own ``jax.jit``/``jax.vmap``):
 
-- skeletons: :class:`Skeleton`, :class:`Pose`, :func:`rest_pose`, :func:`genome_layout`,
-  :func:`genome_bounds`, :func:`encode`, :func:`decode`
+- skeletons: :class:`Skeleton`, :class:`Pose`, :func:`rest_pose`
+- the genome: :func:`genome_layout`, :func:`genome_bounds`, :func:`encode`, :func:`decode`
 - kinematics: :func:`forward_kinematics` -> :class:`Links`, :func:`collision_pairs`
 - objective: :class:`Cloud`, :class:`ObjectiveConfig`, :func:`paper_cost`, :func:`data_cost`,
   :func:`population_cost`, :func:`observe`, :func:`cloud_spread`
@@ -25,6 +25,7 @@ _disable_ynn_fusions()  # before anything computes: see jaxpose/_xla_flags.py
 
 from .camera import KINECT_V1, Intrinsics, depth_to_cloud, points_to_cloud, project, sensor_points_to_cloud
 from .errors import ConfigError, DepthError, IntrinsicsError, JaxposeError, SkeletonError
+from .genome import decode, encode, genome_bounds, genome_layout
 from .io.cloud_file import load_points, to_sensor_frame
 from .io.depth_file import load_depth, parse_intrinsics
 from .io.skeleton_file import load_skeleton, shipped_skeletons
@@ -32,7 +33,7 @@ from .kinematics import Links, collision_pairs, forward_kinematics
 from .objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, observe, paper_cost, population_cost
 from .pipeline import DepthOptions, fit_depth_file
 from .search import BoundedHillClimbing, BranchSwapGA, FitConfig, Fitter, FitResult, fit, fit_cloud
-from .skeleton import Pose, Skeleton, decode, encode, genome_bounds, genome_layout, rest_pose
+from .skeleton import Pose, Skeleton, rest_pose
 
 __all__ = [
     "KINECT_V1", "BoundedHillClimbing", "BranchSwapGA", "Cloud", "ConfigError", "DepthError", "DepthOptions",

@@ -1,4 +1,4 @@
-"""The skeleton model: a tree of capsule links, its parameters and its genome.
+"""The skeleton model: a tree of capsule links and its parameters.
 
 A :class:`Skeleton` is a pytree with a static topology (names, parent indices,
 joint types, depth levels) and numeric leaves (offsets, rest rotations, limits,
@@ -25,27 +25,26 @@ along ``axis`` (rest frame), ``R_joint = I`` and the anchor moves by
 ``fixed``: none.
 
 Parameters (:class:`Pose`) are a pytree in physical units.  The search works on a
-flat genome ``g`` in ``[0, 1]^D`` (see :class:`GenomeLayout`).
+flat genome ``g`` in ``[0, 1]^D`` (see :mod:`jaxpose.genome`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .errors import SkeletonError
-from .geometry import axis_angle_matrix  # noqa: F401  # imported by jaxpose/search until it moves
 from .geometry import rpy_matrix
 
-JOINT_DOF = {"ball": 3, "hinge": 1, "slide": 1, "fixed": 0}
+if TYPE_CHECKING:
+    from .genome import GenomeLayout
 
-# Search range of the root orientation (roll, pitch, yaw), radians.
-ROOT_ANGLE_LIMITS = np.array([[-np.pi, np.pi], [-np.pi / 2, np.pi / 2], [-np.pi, np.pi]])
+JOINT_DOF = {"ball": 3, "hinge": 1, "slide": 1, "fixed": 0}
 
 
 @dataclass(frozen=True)
@@ -110,7 +109,10 @@ class Skeleton:
         return tuple(out)
 
     @property
-    def layout(self) -> "GenomeLayout":
+    def layout(self) -> GenomeLayout:
+        """Where each searched parameter sits in the genome (:func:`jaxpose.genome.genome_layout`)."""
+        from .genome import genome_layout  # the genome module builds on this one
+
         return genome_layout(self)
 
     @property
@@ -163,121 +165,6 @@ def rest_pose(skel: Skeleton, root_t=(0.0, 0.0, 0.0), root_rpy=(0.0, 0.0, 0.0), 
     )
 
 
-# --------------------------------------------------------------------------- genome
-
-
-@dataclass(frozen=True)
-class GenomeLayout:
-    """Where each searched parameter sits in the flat genome.
-
-    The genome is ``[root_t (3), root_rpy (3), scale (1), then for every link in
-    topological order: its joint values (ball 3, hinge 1, slide 1, fixed 0) followed by its
-    length if the link's length range is not a single value]``.  Every gene lies in
-    ``[0, 1]`` and maps linearly onto its parameter's range.  ``target`` gives each
-    gene's index in the flat parameter vector ``[root_t, root_rpy, scale,
-    angles (L*3, row-major), lengths (L)]``.
-    """
-
-    names: tuple[str, ...]
-    target: tuple[int, ...]
-    link_of_gene: tuple[int, ...]  # -1 for the root genes
-    num_links: int
-
-    @property
-    def size(self) -> int:
-        return len(self.names)
-
-    @property
-    def num_params(self) -> int:
-        return 7 + 4 * self.num_links
-
-    def gene_mask(self, links) -> np.ndarray:
-        """Boolean mask over the genome of the genes belonging to ``links``."""
-        links = set(links)
-        return np.array([l in links for l in self.link_of_gene])
-
-
-def genome_layout(skel: Skeleton) -> GenomeLayout:
-    names, target, link_of = [], [], []
-    for k, n in enumerate(["root_tx", "root_ty", "root_tz", "root_roll", "root_pitch", "root_yaw", "scale"]):
-        names.append(n)
-        target.append(k)
-        link_of.append(-1)
-    for i, (lname, jt) in enumerate(zip(skel.link_names, skel.joint_types)):
-        for a in range(JOINT_DOF[jt]):
-            names.append(f"{lname}.q{a}")
-            target.append(7 + 3 * i + a)
-            link_of.append(i)
-        if skel.length_searched[i]:
-            names.append(f"{lname}.length")
-            target.append(7 + 3 * skel.num_links + i)
-            link_of.append(i)
-    return GenomeLayout(tuple(names), tuple(target), tuple(link_of), skel.num_links)
-
-
-class Bounds(NamedTuple):
-    """Physical range of every gene: gene 0 maps to ``lo``, gene 1 to ``hi``."""
-
-    lo: jax.Array  # (D,)
-    hi: jax.Array  # (D,)
-
-
-def genome_bounds(skel: Skeleton, centre, extent) -> Bounds:
-    """Gene ranges for a cloud centred at ``centre`` with radius ``extent`` (metres).
-
-    The root may move anywhere within ``centre +- extent``; the scale and the joint
-    and length ranges come from the skeleton.
-    """
-    layout = genome_layout(skel)
-    centre = jnp.asarray(centre, jnp.float32)
-    extent = jnp.asarray(extent, jnp.float32)
-    L = skel.num_links
-    full_lo = jnp.concatenate([
-        centre - extent, jnp.asarray(ROOT_ANGLE_LIMITS[:, 0], jnp.float32), skel.scale_lo[None],
-        skel.angle_lo.reshape(-1), skel.length_lo,
-    ]).astype(jnp.float32)
-    full_hi = jnp.concatenate([
-        centre + extent, jnp.asarray(ROOT_ANGLE_LIMITS[:, 1], jnp.float32), skel.scale_hi[None],
-        skel.angle_hi.reshape(-1), skel.length_hi,
-    ]).astype(jnp.float32)
-    assert full_lo.shape == (7 + 4 * L,)
-    idx = np.asarray(layout.target, np.int32)
-    return Bounds(full_lo[idx], full_hi[idx])
-
-
-def _base_vector(skel: Skeleton) -> jax.Array:
-    rest = rest_pose(skel)
-    return pose_to_vector(rest)
-
-
-def pose_to_vector(pose: Pose) -> jax.Array:
-    return jnp.concatenate([
-        pose.root_t, pose.root_rpy, jnp.reshape(pose.scale, (1,)), pose.angles.reshape(-1), pose.lengths
-    ])
-
-
-def vector_to_pose(vec: jax.Array, num_links: int) -> Pose:
-    L = num_links
-    return Pose(vec[0:3], vec[3:6], vec[6], vec[7 : 7 + 3 * L].reshape(L, 3), vec[7 + 3 * L : 7 + 4 * L])
-
-
-def decode(skel: Skeleton, bounds: Bounds, genome: jax.Array) -> Pose:
-    """Genome in ``[0, 1]^D`` (clipped) -> :class:`Pose`.  Differentiable; vmap for batches."""
-    layout = genome_layout(skel)
-    g = jnp.clip(genome, 0.0, 1.0)
-    values = bounds.lo + g * (bounds.hi - bounds.lo)
-    vec = _base_vector(skel).at[np.asarray(layout.target, np.int32)].set(values)
-    return vector_to_pose(vec, skel.num_links)
-
-
-def encode(skel: Skeleton, bounds: Bounds, pose: Pose) -> jax.Array:
-    """:class:`Pose` -> genome (values outside the ranges are clipped to ``[0, 1]``)."""
-    layout = genome_layout(skel)
-    vec = pose_to_vector(pose)[np.asarray(layout.target, np.int32)]
-    span = jnp.where(bounds.hi > bounds.lo, bounds.hi - bounds.lo, 1.0)
-    return jnp.clip((vec - bounds.lo) / span, 0.0, 1.0)
-
-
 # --------------------------------------------------------------------------- construction
 
 
@@ -324,6 +211,31 @@ def build_skeleton(
 
     if not links:
         fail("the skeleton has no links")
+    _check_names(links, fail)
+    order = _tree_order(links, fail)
+    index = {l.name: i for i, l in enumerate(order)}
+    for l in links:
+        if l.body is not None and (l.body != l.parent or l.joint != "fixed"):
+            fail(f"an extra capsule of link {l.body!r} must be a fixed child of it", l.name)
+    lo_s, hi_s = _pair(scale_range, None, "scale range", fail)
+    if not (lo_s > 0):
+        fail(f"scale range must be positive, got {scale_range}")
+    arrays = _link_arrays(order, require_geometry, fail)
+
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    skel = Skeleton(
+        **{k: f32(v) for k, v in arrays.items()}, scale_lo=f32(lo_s), scale_hi=f32(hi_s),
+        name=str(name), link_names=tuple(l.name for l in order),
+        parents=tuple(index[l.parent] if l.parent is not None else -1 for l in order),
+        joint_types=tuple(l.joint for l in order),
+        length_searched=tuple(bool(h > l) for l, h in zip(arrays["length_lo"], arrays["length_hi"])),
+        body=tuple(index[l.body] if l.body is not None else i for i, l in enumerate(order)),
+    )
+    return dataclasses.replace(skel, orbit=_orbit_roots(skel))
+
+
+def _check_names(links: list[LinkSpec], fail) -> None:
+    """Every link has a unique non-empty name and an existing parent other than itself."""
     seen = set()
     for l in links:
         if not isinstance(l.name, str) or not l.name:
@@ -337,7 +249,10 @@ def build_skeleton(
             fail(f"unknown parent {l.parent!r}", l.name)
         if l.parent == l.name:
             fail("a link cannot be its own parent", l.name)
-    # topological order (stable: file order among ready links), detecting cycles
+
+
+def _tree_order(links: list[LinkSpec], fail) -> list[LinkSpec]:
+    """The links in topological order (stable: file order among ready links); a cycle fails."""
     order, placed = [], set()
     pending = list(links)
     while pending:
@@ -355,136 +270,159 @@ def build_skeleton(
             order.append(l)
             placed.add(l.name)
         pending = [l for l in pending if l.name not in placed]
-    index = {l.name: i for i, l in enumerate(order)}
-    for l in links:
-        if l.body is not None and (l.body != l.parent or l.joint != "fixed"):
-            fail(f"an extra capsule of link {l.body!r} must be a fixed child of it", l.name)
+    return order
 
-    lo_s, hi_s = _pair(scale_range, source, None, "scale range", fail)
-    if not (lo_s > 0):
-        fail(f"scale range must be positive, got {scale_range}")
 
+def _link_arrays(order: list[LinkSpec], require_geometry: bool, fail) -> dict:
+    """The numeric fields of :class:`Skeleton` (float64 NumPy arrays), every link checked in turn."""
     L = len(order)
-    offset = np.zeros((L, 3))
-    attach = np.zeros(L)
-    rest = np.zeros((L, 3, 3))
-    axis = np.zeros((L, 3))
-    alo = np.zeros((L, 3))
-    ahi = np.zeros((L, 3))
-    seg_start = np.zeros((L, 3))
-    seg_dir = np.zeros((L, 3))
-    length = np.zeros(L)
-    llo = np.zeros(L)
-    lhi = np.zeros(L)
-    radius = np.zeros(L)
+    a = dict(offset=np.zeros((L, 3)), attach=np.zeros(L), rest_rotation=np.zeros((L, 3, 3)), axis=np.zeros((L, 3)),
+             angle_lo=np.zeros((L, 3)), angle_hi=np.zeros((L, 3)), seg_start=np.zeros((L, 3)),
+             seg_dir=np.zeros((L, 3)), length=np.zeros(L), length_lo=np.zeros(L), length_hi=np.zeros(L),
+             radius=np.zeros(L))
     for i, l in enumerate(order):
         if not isinstance(l.joint, str) or l.joint not in JOINT_DOF:
             fail(f"unknown joint type {l.joint!r} (expected one of {', '.join(JOINT_DOF)})", l.name)
-        offset[i] = _vec3(l.offset, "offset", l.name, fail)
-        try:
-            attach[i] = float(l.attach if l.attach is not None else (1.0 if l.parent is not None else 0.0))
-        except (TypeError, ValueError):
-            fail(f"'attach' must be a number, got {l.attach!r}", l.name)
-        if not np.isfinite(attach[i]):
-            fail(f"'attach' must be a finite number, got {l.attach!r}", l.name)
+        a["offset"][i] = _vec3(l.offset, "offset", l.name, fail)
+        a["attach"][i] = _attach(l, fail)
         if l.rest_matrix is not None:
-            rest[i] = np.asarray(l.rest_matrix, float).reshape(3, 3)
+            a["rest_rotation"][i] = np.asarray(l.rest_matrix, float).reshape(3, 3)
         else:
-            rest[i] = rpy_matrix(np.deg2rad(_vec3(l.rest, "rest", l.name, fail)))
-        ax = _vec3(l.axis, "axis", l.name, fail)
-        if l.joint in ("hinge", "slide"):
-            n = np.linalg.norm(ax)
-            if not n > 0:
-                fail(f"{l.joint} axis must be a non-zero vector", l.name)
-            ax = ax / n
-        axis[i] = ax
+            a["rest_rotation"][i] = rpy_matrix(np.deg2rad(_vec3(l.rest, "rest", l.name, fail)))
+        a["axis"][i] = _joint_axis(l, fail)
         dof = JOINT_DOF[l.joint]
-        unit = "metres" if l.joint == "slide" else "degrees"
-        lim = l.limits
-        if lim is None:
-            if l.joint == "slide":
-                fail("a slide joint needs 'limits' (one [lo, hi] pair, metres)", l.name)
-            lim = [[-180.0, 180.0]] * dof
-        try:
-            lim = np.asarray(lim, float).reshape(-1, 2) if dof else np.zeros((0, 2))
-        except (TypeError, ValueError):
-            fail(f"'limits' must be {dof} pair(s) of numbers ({unit})", l.name)
-        if lim.shape[0] != dof:
-            fail(f"'limits' must have {dof} [lo, hi] pair(s) for a {l.joint} joint, got {lim.shape[0]}", l.name)
-        if not np.all(np.isfinite(lim)):
-            fail("joint limits must be finite numbers", l.name)
-        if np.any(lim[:, 0] > lim[:, 1]):
-            fail(f"inverted joint limits {lim.tolist()} (lower > upper)", l.name)
-        to_rad = (lambda v: v) if l.joint == "slide" else np.deg2rad
-        alo[i, :dof] = to_rad(lim[:, 0])
-        ahi[i, :dof] = to_rad(lim[:, 1])
-        try:
-            length[i] = float(l.length)
-        except (TypeError, ValueError):
-            fail(f"'length' must be a number, got {l.length!r}", l.name)
-        if not np.isfinite(length[i]) or length[i] < 0 or (require_geometry and length[i] <= 0):
-            fail(f"length must be {'>' if require_geometry else '>='} 0, got {l.length}", l.name)
-        if l.length_range is None:
-            llo[i] = lhi[i] = length[i]
-        else:
-            llo[i], lhi[i] = _pair(l.length_range, source, l.name, "length_range", fail)
-            if llo[i] < 0 or llo[i] > lhi[i]:
-                fail(f"length_range must satisfy 0 <= lo <= hi, got {list(l.length_range)}", l.name)
-            if llo[i] == 0 and lhi[i] == 0 and length[i] > 0:
-                fail("length_range [0, 0] contradicts a positive length", l.name)
-            length[i] = np.clip(length[i], llo[i], lhi[i])
-        if require_geometry and not lhi[i] > 0:
-            rng = f" with range {list(l.length_range)}" if l.length_range is not None else ""
-            fail(f"length must be > 0, got {l.length}{rng}", l.name)
-        try:
-            radius[i] = float(l.radius)
-        except (TypeError, ValueError):
-            fail(f"'radius' must be a number, got {l.radius!r}", l.name)
-        if not np.isfinite(radius[i]) or radius[i] < 0:
-            fail(f"radius must be >= 0, got {l.radius}", l.name)
-        seg_start[i] = _vec3(l.seg_start, "seg_start", l.name, fail)
+        lo, hi = _joint_limits(l, fail)
+        a["angle_lo"][i, :dof], a["angle_hi"][i, :dof] = lo, hi
+        a["length"][i], a["length_lo"][i], a["length_hi"][i] = _length(l, require_geometry, fail)
+        a["radius"][i] = _radius(l, fail)
+        a["seg_start"][i] = _vec3(l.seg_start, "seg_start", l.name, fail)
         d = _vec3(l.seg_dir, "seg_dir", l.name, fail)
         n = np.linalg.norm(d)
-        seg_dir[i] = d / n if n > 0 else np.array([1.0, 0.0, 0.0])
-
-    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
-    skel = Skeleton(
-        offset=f32(offset), attach=f32(attach), rest_rotation=f32(rest), axis=f32(axis),
-        angle_lo=f32(alo), angle_hi=f32(ahi), seg_start=f32(seg_start), seg_dir=f32(seg_dir),
-        length=f32(length), length_lo=f32(llo), length_hi=f32(lhi), radius=f32(radius),
-        scale_lo=f32(lo_s), scale_hi=f32(hi_s),
-        name=str(name), link_names=tuple(l.name for l in order),
-        parents=tuple(index[l.parent] if l.parent is not None else -1 for l in order),
-        joint_types=tuple(l.joint for l in order),
-        length_searched=tuple(bool(h > l) for l, h in zip(llo, lhi)),
-        body=tuple(index[l.body] if l.body is not None else i for i, l in enumerate(order)),
-    )
-    from .symmetry import link_orbits  # it needs this module's Skeleton
-
-    orbit = [0] * len(order)
-    for o in link_orbits(skel):
-        for i in o:
-            orbit[i] = o[0]
-    return dataclasses.replace(skel, orbit=tuple(orbit))
-
-
-def _vec3(v, what, link, fail):
-    try:
-        a = np.asarray(v, float).reshape(-1)
-    except (TypeError, ValueError):
-        fail(f"{what!r} must be 3 numbers, got {v!r}", link)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        fail(f"{what!r} must be 3 finite numbers, got {v!r}", link)
+        a["seg_dir"][i] = d / n if n > 0 else np.array([1.0, 0.0, 0.0])
     return a
 
 
-def _pair(v, source, link, what, fail):
+def _attach(l: LinkSpec, fail) -> float:
+    """``attach`` as a finite number (default: 1 for a link with a parent, 0 for a root)."""
+    try:
+        attach = float(l.attach if l.attach is not None else (1.0 if l.parent is not None else 0.0))
+    except (TypeError, ValueError):
+        fail(f"'attach' must be a number, got {l.attach!r}", l.name)
+    if not np.isfinite(attach):
+        fail(f"'attach' must be a finite number, got {l.attach!r}", l.name)
+    return attach
+
+
+def _joint_axis(l: LinkSpec, fail) -> np.ndarray:
+    """The axis, normalised for the joints that use one (hinge, slide)."""
+    ax = _vec3(l.axis, "axis", l.name, fail)
+    if l.joint in ("hinge", "slide"):
+        n = np.linalg.norm(ax)
+        if not n > 0:
+            fail(f"{l.joint} axis must be a non-zero vector", l.name)
+        ax = ax / n
+    return ax
+
+
+def _joint_limits(l: LinkSpec, fail) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper limits ``(dof,)`` in radians (a slide: metres)."""
+    dof = JOINT_DOF[l.joint]
+    unit = "metres" if l.joint == "slide" else "degrees"
+    lim = l.limits
+    if lim is None:
+        if l.joint == "slide":
+            fail("a slide joint needs 'limits' (one [lo, hi] pair, metres)", l.name)
+        lim = [[-180.0, 180.0]] * dof
+    try:
+        lim = np.asarray(lim, float).reshape(-1, 2) if dof else np.zeros((0, 2))
+    except (TypeError, ValueError):
+        fail(f"'limits' must be {dof} pair(s) of numbers ({unit})", l.name)
+    if lim.shape[0] != dof:
+        fail(f"'limits' must have {dof} [lo, hi] pair(s) for a {l.joint} joint, got {lim.shape[0]}", l.name)
+    if not np.all(np.isfinite(lim)):
+        fail("joint limits must be finite numbers", l.name)
+    if np.any(lim[:, 0] > lim[:, 1]):
+        fail(f"inverted joint limits {lim.tolist()} (lower > upper)", l.name)
+    to_rad = (lambda v: v) if l.joint == "slide" else np.deg2rad
+    return to_rad(lim[:, 0]), to_rad(lim[:, 1])
+
+
+def _length(l: LinkSpec, require_geometry: bool, fail) -> tuple[float, float, float]:
+    """``(length, lo, hi)``: the rest length clipped into its search range (a single value: fixed)."""
+    try:
+        length = float(l.length)
+    except (TypeError, ValueError):
+        fail(f"'length' must be a number, got {l.length!r}", l.name)
+    if not np.isfinite(length) or length < 0 or (require_geometry and length <= 0):
+        fail(f"length must be {'>' if require_geometry else '>='} 0, got {l.length}", l.name)
+    if l.length_range is None:
+        lo = hi = length
+    else:
+        lo, hi = _pair(l.length_range, l.name, "length_range", fail)
+        if lo < 0 or lo > hi:
+            fail(f"length_range must satisfy 0 <= lo <= hi, got {list(l.length_range)}", l.name)
+        if lo == 0 and hi == 0 and length > 0:
+            fail("length_range [0, 0] contradicts a positive length", l.name)
+        length = np.clip(length, lo, hi)
+    if require_geometry and not hi > 0:
+        rng = f" with range {list(l.length_range)}" if l.length_range is not None else ""
+        fail(f"length must be > 0, got {l.length}{rng}", l.name)
+    return length, lo, hi
+
+
+def _radius(l: LinkSpec, fail) -> float:
+    try:
+        radius = float(l.radius)
+    except (TypeError, ValueError):
+        fail(f"'radius' must be a number, got {l.radius!r}", l.name)
+    if not np.isfinite(radius) or radius < 0:
+        fail(f"radius must be >= 0, got {l.radius}", l.name)
+    return radius
+
+
+def _orbit_roots(skel: Skeleton) -> tuple[int, ...]:
+    """Every link's symmetry orbit, named by its first link (:func:`jaxpose.symmetry.link_orbits`)."""
+    from .symmetry import link_orbits  # it needs this module's Skeleton
+
+    orbit = [0] * skel.num_links
+    for o in link_orbits(skel):
+        for i in o:
+            orbit[i] = o[0]
+    return tuple(orbit)
+
+
+def _floats(v, n: int, link, fail, not_numbers: str, not_finite: str) -> np.ndarray:
+    """``v`` as ``n`` finite float64 numbers, else ``fail`` with one of the two messages."""
     try:
         a = np.asarray(v, float).reshape(-1)
     except (TypeError, ValueError):
-        fail(f"{what} must be [lo, hi], got {v!r}", link)
-    if a.shape != (2,) or not np.all(np.isfinite(a)):
-        fail(f"{what} must be two finite numbers [lo, hi], got {v!r}", link)
+        fail(not_numbers, link)
+    if a.shape != (n,) or not np.all(np.isfinite(a)):
+        fail(not_finite, link)
+    return a
+
+
+def _vec3(v, what, link, fail):
+    return _floats(v, 3, link, fail, f"{what!r} must be 3 numbers, got {v!r}",
+                   f"{what!r} must be 3 finite numbers, got {v!r}")
+
+
+def _pair(v, link, what, fail):
+    a = _floats(v, 2, link, fail, f"{what} must be [lo, hi], got {v!r}",
+                f"{what} must be two finite numbers [lo, hi], got {v!r}")
     if a[0] > a[1]:
         fail(f"inverted {what} {a.tolist()} (lo > hi)", link)
     return float(a[0]), float(a[1])
+
+
+# jaxpose.genome's names, imported from here by jaxpose/search until it moves (a lazy lookup:
+# jaxpose.genome imports this module)
+_GENOME_NAMES = ("Bounds", "GenomeLayout", "ROOT_ANGLE_LIMITS", "decode", "encode", "genome_bounds", "genome_layout")
+
+
+def __getattr__(name):  # imported by jaxpose/search until it moves
+    if name in _GENOME_NAMES:
+        from . import genome
+
+        return getattr(genome, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

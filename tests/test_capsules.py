@@ -14,7 +14,8 @@ from jaxpose.io import capsules as C
 from jaxpose.io.urdf import load_urdf
 from jaxpose.io.skeleton_file import load_skeleton
 from jaxpose.kinematics import forward_kinematics
-from jaxpose.skeleton import genome_layout, rest_pose
+from jaxpose.genome import genome_layout
+from jaxpose.skeleton import rest_pose
 
 FIXTURES = os.path.join(os.path.dirname(__file__), "fixtures")
 RNG = np.random.default_rng(3)

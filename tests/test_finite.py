@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 import jaxpose as jp
 from oracles import rpy
-from jaxpose.skeleton import genome_layout
+from jaxpose.genome import genome_layout
 
 SKELETONS = jp.shipped_skeletons()
 PROPS = settings(max_examples=25, deadline=None, derandomize=True,
@@ -38,7 +38,7 @@ def model(name):
 
     @jax.jit
     def run(lo, hi, genome):
-        pose = jp.decode(skel, jp.skeleton.Bounds(lo, hi), genome)
+        pose = jp.decode(skel, jp.genome.Bounds(lo, hi), genome)
         return pose, jp.forward_kinematics(skel, pose)
 
     return skel, run

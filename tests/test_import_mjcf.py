@@ -13,7 +13,7 @@ from jaxpose.errors import SkeletonError
 from jaxpose.geometry import quat_to_matrix
 from jaxpose.io.skeleton_file import load_skeleton
 from jaxpose.kinematics import forward_kinematics
-from jaxpose.skeleton import genome_layout
+from jaxpose.genome import genome_layout
 
 mujoco = pytest.importorskip("mujoco")
 from jaxpose.io.mjcf import compile_mjcf, load_mjcf, pose_from_qpos, skeleton_from_model  # noqa: E402

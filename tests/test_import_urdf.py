@@ -14,7 +14,8 @@ from jaxpose.io.skeleton_file import load_skeleton
 from jaxpose.io import capsules as C
 from jaxpose.io.urdf import DEFAULT_MESH_RADIUS, load_urdf
 from jaxpose.kinematics import forward_kinematics
-from jaxpose.skeleton import Pose, genome_layout
+from jaxpose.genome import genome_layout
+from jaxpose.skeleton import Pose
 
 FIXTURES = os.path.join(os.path.dirname(__file__), "fixtures")
 FK_TOL = 1e-5  # metres and matrix entries; jaxpose runs in float32

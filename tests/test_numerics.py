@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from jaxpose.io.skeleton_file import load_skeleton
 from jaxpose.kinematics import forward_kinematics
 from jaxpose.objective import Cloud, ObjectiveConfig, cloud_spread, observe, paper_cost, population_cost
-from jaxpose.skeleton import LinkSpec, Pose, build_skeleton, decode, genome_bounds
+from jaxpose.genome import decode, genome_bounds
+from jaxpose.skeleton import LinkSpec, Pose, build_skeleton
 
 from oracles import brute_cost
 

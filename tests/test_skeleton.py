@@ -13,16 +13,8 @@ import pytest
 
 from jaxpose.errors import SkeletonError
 from jaxpose.io.skeleton_file import load_skeleton, skeleton_from_dict
-from jaxpose.skeleton import (
-    LinkSpec,
-    Pose,
-    build_skeleton,
-    decode,
-    encode,
-    genome_bounds,
-    genome_layout,
-    rest_pose,
-)
+from jaxpose.genome import decode, encode, genome_bounds, genome_layout
+from jaxpose.skeleton import LinkSpec, Pose, build_skeleton, rest_pose
 
 SKELETON_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "skeletons")
 SHIPPED = ["spider", "humanoid", "arm7", "snake"]
