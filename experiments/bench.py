@@ -68,7 +68,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from common import cpu_model  # noqa: E402  (experiments/common.py)
-from jaxpose.io.results import atomic_write  # noqa: E402
+from jaxpose.io.atomic import atomic_write  # noqa: E402
 from jaxpose.objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, point_capsule_distance  # noqa: E402
 
 SCHEMA = 1

@@ -44,11 +44,11 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxpose.io.fit_result import package_versions  # noqa: E402
-from jaxpose.io.results import atomic_write, to_jsonable  # noqa: E402
+from jaxpose.io.atomic import atomic_write, to_jsonable  # noqa: E402
 from jaxpose.io.skeleton_file import load_skeleton  # noqa: E402
 from jaxpose.io.truth import read_links  # noqa: E402
 from jaxpose.metrics import evaluate  # noqa: E402
-from jaxpose.pipeline import DepthOptions, load_observation  # noqa: E402
+from jaxpose.pipeline import InputOptions, load_observation  # noqa: E402
 from jaxpose.search.fit import FitConfig, coarse_switch, fit_cloud  # noqa: E402
 from jaxpose.skeleton import Skeleton  # noqa: E402
 
@@ -151,12 +151,12 @@ def parse_images_arg(values):
     return list(values)
 
 
-def depth_options(ds: Dataset, entry: dict) -> DepthOptions:
-    """How every experiment turns a data set image into a cloud (DepthOptions defaults otherwise)."""
+def depth_options(ds: Dataset, entry: dict) -> InputOptions:
+    """How every experiment turns a data set image into a cloud (InputOptions defaults otherwise)."""
     k = ds.index["intrinsics"]
-    return DepthOptions(
+    return InputOptions(
         intrinsics=f"{k['fx']},{k['fy']},{k['cx']},{k['cy']}",
-        depth_scale=ds.index.get("depth_scale", DepthOptions.depth_scale),
+        depth_scale=ds.index.get("depth_scale", InputOptions.depth_scale),
         background=os.path.join(ds.folder, entry["background"]) if entry.get("background") else None,
     )
 
@@ -196,7 +196,7 @@ def make_config(base: FitConfig, overrides: dict | None = None) -> FitConfig:
     return cfg.validate()
 
 
-def planned_evaluations(config: FitConfig, n_points: int = DepthOptions.max_points) -> dict:
+def planned_evaluations(config: FitConfig, n_points: int = InputOptions.max_points) -> dict:
     """Objective and gradient evaluations a fit with ``config`` will count (mirrors jaxpose/search/fit.py).
 
     ``P`` per generation (the first generation evaluates the initial population); with

@@ -18,7 +18,7 @@ import time
 
 
 from jaxpose import render as R
-from jaxpose.io.results import write_json
+from jaxpose.io.atomic import write_json
 from jaxpose.io.skeleton_file import load_skeleton
 from jaxpose.io.truth import write_view
 

@@ -12,7 +12,7 @@ Per model and view: joint values drawn around ``qpos0`` (``--spread`` times half
 range), a free camera on a random orbit (elevation 15-45 degrees down, any azimuth)
 framing the model, the depth buffer in millimetres with Gaussian noise of
 ``0.0015 z^2`` m and nothing beyond 0.4-4 m, and a second render with the model's geoms hidden as the background
-image (floors and other world geoms stay in it).  The fit is ``jaxpose.fit_depth_file``
+image (floors and other world geoms stay in it).  The fit is ``jaxpose.fit_file``
 with the default ``FitConfig`` (``--generations`` to change it).
 
 Needs the ``mujoco`` extra and an OpenGL context (``MUJOCO_GL=egl``, the default set
@@ -37,7 +37,7 @@ if sys.platform.startswith("linux"):  # headless OpenGL; MuJoCo refuses "egl" at
 import numpy as np  # noqa: E402
 
 import jaxpose as jp  # noqa: E402
-from jaxpose.io.results import write_json  # noqa: E402
+from jaxpose.io.atomic import write_json  # noqa: E402
 from jaxpose.io.capsules import MAX_CAPSULES  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -226,10 +226,10 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
         true_end = (np.asarray(links.end, np.float64) - centre) @ R.T
         true_origin = (np.asarray(links.origin, np.float64) - centre) @ R.T
         true_R = R @ np.asarray(links.R_world_link, np.float64)
-        options = jp.DepthOptions(intrinsics=f"{k.fx},{k.fy},{k.cx},{k.cy}",
+        options = jp.InputOptions(intrinsics=f"{k.fx},{k.fy},{k.cx},{k.cy}",
                                   background=bg if np.isfinite(background).any() else None)
         t0 = time.perf_counter()
-        out = jp.fit_depth_file(image, skel, config, seed=seed, options=options, skeleton_file=path)
+        out = jp.fit_file(image, skel, config, seed=seed, options=options, skeleton_file=path)
         seconds = time.perf_counter() - t0
         res = {link["name"]: link for link in out.document["links"]}
         ps = np.array([res[n]["start"] for n in skel.link_names])

@@ -1,5 +1,5 @@
 """Point subsampling and coarse-to-fine as work-saving strategies: accuracy and time
-against the number of points the cloud keeps (``DepthOptions.max_points``) and the
+against the number of points the cloud keeps (``InputOptions.max_points``) and the
 number the GA scores during the first half of the search (``FitConfig.coarse_points``),
 same images, seed and search.
 
@@ -26,7 +26,7 @@ import sys
 import numpy as np
 
 import common as C
-from jaxpose.pipeline import DepthOptions, load_observation
+from jaxpose.pipeline import InputOptions, load_observation
 from jaxpose.search.fit import FitConfig
 
 POINTS = (256, 512, 1024, 2048)
@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     for model in a.models:
         ds = C.load_dataset(model, a.data)
         entries = C.select_images(ds, a.images)
-        runs = [(n, 0) for n in a.points] + [(DepthOptions.max_points, c) for c in a.coarse]
+        runs = [(n, 0) for n in a.points] + [(InputOptions.max_points, c) for c in a.coarse]
         for n, coarse in runs:
             cfg = dataclasses.replace(config, coarse_points=coarse).validate()
             pcp, secs, pts = [], [], []

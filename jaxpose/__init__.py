@@ -13,7 +13,7 @@ The pure functional core (usable inside your own ``jax.jit``/``jax.vmap``):
   :func:`sensor_points_to_cloud`
 
 The edges (files): :func:`load_skeleton` (native TOML/JSON, URDF, MJCF), :func:`load_depth`,
-:func:`load_points` (PLY, PCD, XYZ, NumPy point clouds), :func:`parse_intrinsics`, :func:`fit_depth_file`.
+:func:`load_points` (PLY, PCD, XYZ, NumPy point clouds), :func:`parse_intrinsics`, :func:`fit_file`.
 Errors for bad input derive from :class:`JaxposeError`.
 """
 
@@ -31,15 +31,15 @@ from .io.depth_file import load_depth, parse_intrinsics
 from .io.skeleton_file import load_skeleton, shipped_skeletons
 from .kinematics import Links, collision_pairs, forward_kinematics
 from .objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, observe, paper_cost, population_cost
-from .pipeline import DepthOptions, fit_depth_file
+from .pipeline import InputOptions, fit_file
 from .search import BoundedHillClimbing, BranchSwapGA, FitConfig, Fitter, FitResult, fit, fit_cloud
 from .skeleton import Pose, Skeleton, rest_pose
 
 __all__ = [
-    "KINECT_V1", "BoundedHillClimbing", "BranchSwapGA", "Cloud", "ConfigError", "DepthError", "DepthOptions",
-    "FitConfig", "FitResult", "Fitter", "Intrinsics", "IntrinsicsError", "JaxposeError", "Links",
+    "KINECT_V1", "BoundedHillClimbing", "BranchSwapGA", "Cloud", "ConfigError", "DepthError", "FitConfig",
+    "FitResult", "Fitter", "InputOptions", "Intrinsics", "IntrinsicsError", "JaxposeError", "Links",
     "ObjectiveConfig", "Pose", "Skeleton", "SkeletonError", "cloud_spread", "collision_pairs", "data_cost", "decode",
-    "depth_to_cloud", "encode", "fit", "fit_cloud", "fit_depth_file", "forward_kinematics", "genome_bounds",
+    "depth_to_cloud", "encode", "fit", "fit_cloud", "fit_file", "forward_kinematics", "genome_bounds",
     "genome_layout", "load_depth", "load_points", "load_skeleton", "observe", "paper_cost", "parse_intrinsics",
     "points_to_cloud", "population_cost", "project", "rest_pose", "sensor_points_to_cloud", "shipped_skeletons",
     "to_sensor_frame",

@@ -23,7 +23,7 @@ MAX_PLANES = 8
 
 
 @dataclass(frozen=True)
-class DepthOptions:
+class InputOptions:
     """How a depth image or point-cloud file becomes a cloud.
 
     Depth images: ``intrinsics``, ``depth_scale`` (metres per stored integer),
@@ -49,7 +49,7 @@ class DepthOptions:
     remove_planes: int = 0
     plane_tolerance: float = 0.02
 
-    def validate(self) -> "DepthOptions":
+    def validate(self) -> "InputOptions":
         """Raise :class:`ConfigError` for an impossible setting; return ``self``."""
         def num(name, v):
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
@@ -94,12 +94,12 @@ class FitOutput:
     document: dict
 
 
-def load_observation(depth_path: str, options: DepthOptions = DepthOptions()):
+def load_observation(depth_path: str, options: InputOptions = InputOptions()):
     """Read and validate a depth file (and background); return ``(depth, intrinsics, cloud)``."""
     return _read_observation(depth_path, options)[:3]
 
 
-def _read_observation(depth_path: str, options: DepthOptions):
+def _read_observation(depth_path: str, options: InputOptions):
     """:func:`load_observation`, and whether the depth scale was applied (integer pixels
     in the depth image or its background)."""
     options.validate()
@@ -125,7 +125,7 @@ def _read_observation(depth_path: str, options: DepthOptions):
     return depth, k, cloud, scaled
 
 
-def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions()):
+def load_cloud_observation(cloud_path: str, options: InputOptions = InputOptions()):
     """Read a point-cloud file into the sensor's frame; return ``(view, intrinsics,
     cloud, record)``: a depth image of the kept points seen from the sensor and its
     intrinsics (for plots, :func:`~jaxpose.camera.cloud_view`), the fixed-size
@@ -154,7 +154,7 @@ def load_cloud_observation(cloud_path: str, options: DepthOptions = DepthOptions
     return view, k, cloud, record
 
 
-def check_input(path: str, options: DepthOptions = DepthOptions()) -> None:
+def check_input(path: str, options: InputOptions = InputOptions()) -> None:
     """Read and check one input (a depth image or a point cloud) as a fit would;
     raise the fit's error for a bad one."""
     if is_cloud_file(path):
@@ -163,7 +163,7 @@ def check_input(path: str, options: DepthOptions = DepthOptions()) -> None:
         load_observation(path, options)
 
 
-def _depth_record(depth_path: str, options: DepthOptions, k: Intrinsics, cloud: Cloud, scaled: bool) -> dict:
+def _depth_record(depth_path: str, options: InputOptions, k: Intrinsics, cloud: Cloud, scaled: bool) -> dict:
     """What the result file records about a depth-image input (``depth_scale``: ``None``
     when the pixels are metres already and the scale was not applied)."""
     return {
@@ -177,7 +177,7 @@ def _depth_record(depth_path: str, options: DepthOptions, k: Intrinsics, cloud: 
     }
 
 
-def _sampling_record(options: DepthOptions, cloud: Cloud) -> dict:
+def _sampling_record(options: InputOptions, cloud: Cloud) -> dict:
     """What the result file records, for either kind of input, about how the cloud was chosen."""
     return {
         "remove_planes": options.remove_planes,
@@ -193,11 +193,11 @@ def _sampling_record(options: DepthOptions, cloud: Cloud) -> dict:
 SCALE_MARGIN = 1.5  # how far outside the skeleton's scale range a cloud's size is only warned about
 
 
-def unused_depth_scale(options: DepthOptions, scaled: bool, source: str) -> str | None:
+def unused_depth_scale(options: InputOptions, scaled: bool, source: str) -> str | None:
     """A warning when a depth scale other than the default was given for an image (and
     background) whose pixels are floats (metres already, so the scale is not applied);
     ``None`` otherwise."""
-    if scaled or options.depth_scale == DepthOptions.depth_scale:
+    if scaled or options.depth_scale == InputOptions.depth_scale:
         return None
     return (f"{source}: the depth scale {options.depth_scale:g} was not applied: the image stores float "
             "depths, read as metres (the scale converts integer pixels, as in a 16-bit PNG)")
@@ -246,12 +246,12 @@ def load_fit_skeleton(skeleton: str | Skeleton, search_lengths: bool = False,
     return load_skeleton(skel_file, search_lengths=search_lengths, max_capsules=max_capsules), skel_file
 
 
-def fit_depth_file(
-    depth_path: str,
+def fit_file(
+    path: str,
     skeleton: str | Skeleton,
     config: FitConfig = FitConfig(),
     seed: int = 0,
-    options: DepthOptions = DepthOptions(),
+    options: InputOptions = InputOptions(),
     progress=None,
     search_lengths: bool = False,
     skeleton_file: str | None = None,
@@ -272,20 +272,20 @@ def fit_depth_file(
     skel, skel_file = load_fit_skeleton(skeleton, search_lengths, max_capsules)
     skel_file = skel_file or skeleton_file
     config = config.for_skeleton(skel)  # the generations the fit runs, also in the result's record
-    if is_cloud_file(depth_path):
-        depth, k, cloud, inputs = load_cloud_observation(depth_path, options)
+    if is_cloud_file(path):
+        depth, k, cloud, inputs = load_cloud_observation(path, options)
         frame, unused_scale = "sensor (the cloud's viewpoint; x right, y down, z forward), metres", None
     else:
-        depth, k, cloud, scaled = _read_observation(depth_path, options)
-        inputs, frame = _depth_record(depth_path, options, k, cloud, scaled), None
-        unused_scale = unused_depth_scale(options, scaled, str(depth_path))
-    notes = [w for w in (scale_warning(skel, cloud, str(depth_path)), unused_scale) if w]
+        depth, k, cloud, scaled = _read_observation(path, options)
+        inputs, frame = _depth_record(path, options, k, cloud, scaled), None
+        unused_scale = unused_depth_scale(options, scaled, str(path))
+    notes = [w for w in (scale_warning(skel, cloud, str(path)), unused_scale) if w]
     for w in notes:
         warnings.warn(w, InputWarning, stacklevel=2)
     result = fit_cloud(cloud, skel, seed, config, progress)
     if not (np.isfinite(float(result.cost)) and np.all(np.isfinite(np.asarray(result.links.end)))):
         raise ConfigError(
-            f"{depth_path}: the fit of {skel.name!r} ended with a non-finite cost or pose; "
+            f"{path}: the fit of {skel.name!r} ended with a non-finite cost or pose; "
             "check the skeleton's ranges and the depth scale"
         )
     doc = result_document(skel, skel_file, result, config, seed, inputs)

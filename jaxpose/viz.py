@@ -47,7 +47,7 @@ def overlay_figure(depth: np.ndarray, k: Intrinsics, links: list[dict], title: s
 
 def save_figure(fig, path: str) -> None:
     """Save atomically as PNG and close the figure."""
-    from .io.results import atomic_write
+    from .io.atomic import atomic_write
 
     plt = _pyplot()
     try:

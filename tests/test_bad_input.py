@@ -25,7 +25,7 @@ from jaxpose import errors
 from jaxpose.camera import KINECT_V1, Intrinsics, check_intrinsics, depth_to_cloud
 from jaxpose.errors import ConfigError, DepthError, IntrinsicsError, JaxposeError, SkeletonError
 from jaxpose.io.depth_file import load_depth, parse_intrinsics
-from jaxpose.io.results import atomic_write, write_json
+from jaxpose.io.atomic import atomic_write, write_json
 from jaxpose.io.skeleton_file import MAX_LINKS, load_skeleton, skeleton_from_dict
 from jaxpose.io.truth import TruthError
 
@@ -394,7 +394,7 @@ def test_library_functions_raise_documented_types(inputs):
 
 
 def test_library_pipeline_validates_options(inputs):
-    from jaxpose.pipeline import DepthOptions, load_observation
+    from jaxpose.pipeline import InputOptions, load_observation
     from jaxpose.search import FitConfig
 
     for bad, match in [(dict(near=2.0, far=1.0), "near < far"), (dict(depth_scale=0.0), "depth_scale"),
@@ -402,7 +402,7 @@ def test_library_pipeline_validates_options(inputs):
                        (dict(far=float("inf")), "finite"), (dict(remove_planes=9), "remove_planes"),
                        (dict(remove_planes=1.5), "remove_planes"), (dict(plane_tolerance=-0.1), "plane_tolerance")]:
         with pytest.raises(ConfigError, match=match):
-            load_observation(str(inputs / "good.npy"), DepthOptions(**bad))
+            load_observation(str(inputs / "good.npy"), InputOptions(**bad))
     with pytest.raises(ConfigError, match="population"):
         FitConfig(population=1).validate()
     with pytest.raises(ConfigError, match="generations"):
@@ -416,7 +416,7 @@ def test_library_pipeline_validates_options(inputs):
 
 def test_missing_measurements_are_not_errors(tmp_path):
     """NaN, inf, -inf, 0 and negative pixels in a float .npy are missing measurements."""
-    from jaxpose.pipeline import DepthOptions, load_observation
+    from jaxpose.pipeline import InputOptions, load_observation
 
     rng = np.random.default_rng(0)
     d = np.full((120, 160), np.nan, np.float32)
@@ -428,7 +428,7 @@ def test_missing_measurements_are_not_errors(tmp_path):
     assert depth.dtype == np.float32 and not np.any(depth <= 0)
     assert np.isnan(depth[holes]).all() and np.isfinite(depth).sum() >= 0.8 * 1600
     _, k, cloud = load_observation(str(tmp_path / "holes.npy"),
-                                   DepthOptions(intrinsics="150,150,79.5,59.5", max_points=256))
+                                   InputOptions(intrinsics="150,150,79.5,59.5", max_points=256))
     assert k.width == 160 and np.all(np.isfinite(np.asarray(cloud.points)))
     assert int(np.sum(np.asarray(cloud.weights) > 0)) == 256
 
@@ -469,7 +469,7 @@ def test_float_images_are_metres_integer_images_stored_units(tmp_path, ext):
 
 def test_the_depth_scale_is_recorded_and_warned_about_only_where_it_applies(tmp_path):
     """Applied to integer pixels in the image or its background; float pixels are metres."""
-    from jaxpose.pipeline import DepthOptions, _read_observation, unused_depth_scale
+    from jaxpose.pipeline import InputOptions, _read_observation, unused_depth_scale
 
     metres = np.full((30, 40), 2.0, np.float32)
     metres[10:20, 15:25] = 1.5
@@ -477,10 +477,10 @@ def test_the_depth_scale_is_recorded_and_warned_about_only_where_it_applies(tmp_
     np.save(tmp_path / "bg_m.npy", np.full((30, 40), 2.0, np.float32))
     np.save(tmp_path / "bg_mm.npy", np.full((30, 40), 2000, np.uint16))
     for background, scaled in ((None, False), ("bg_m.npy", False), ("bg_mm.npy", True)):
-        opts = DepthOptions("30,30,19.5,14.5", depth_scale=0.001, background=background and str(tmp_path / background))
+        opts = InputOptions("30,30,19.5,14.5", depth_scale=0.001, background=background and str(tmp_path / background))
         got = _read_observation(str(tmp_path / "m.npy"), opts)
         assert got[3] is scaled and int(np.sum(np.asarray(got[2].weights) > 0)) > 0
-        odd = DepthOptions(opts.intrinsics, depth_scale=0.002, background=opts.background)
+        odd = InputOptions(opts.intrinsics, depth_scale=0.002, background=opts.background)
         assert (unused_depth_scale(odd, scaled, "m.npy") is None) is scaled
         assert unused_depth_scale(opts, scaled, "m.npy") is None  # the default scale draws no warning
 

@@ -276,7 +276,7 @@ def test_fit_of_a_cloud_file_equals_the_fit_of_its_depth_image(tmp_path, capsys)
 def test_cloud_scale_and_viewpoint_options(tmp_path):
     """A cloud in millimetres in a rotated frame, with --cloud-scale and --viewpoint,
     gives the points of the same cloud in metres in the sensor's frame."""
-    from jaxpose.pipeline import DepthOptions, load_cloud_observation
+    from jaxpose.pipeline import InputOptions, load_cloud_observation
 
     t, q = np.array([1000.0, 2000.0, 500.0]), Rotation.from_euler("zyx", [90, 10, 0], degrees=True)
     qx, qy, qz, qw = q.as_quat()
@@ -284,9 +284,9 @@ def test_cloud_scale_and_viewpoint_options(tmp_path):
     np.save(tmp_path / "mm.npy", mm)
     write_pcd(tmp_path / "mm.pcd", mm, "binary", f"{t[0]} {t[1]} {t[2]} {qw} {qx} {qy} {qz}")
     np.save(tmp_path / "m.npy", POINTS[8:])
-    _, _, b, _ = load_cloud_observation(str(tmp_path / "m.npy"), DepthOptions(max_points=600))
-    opts = DepthOptions(cloud_scale=0.001, viewpoint=f"{t[0]},{t[1]},{t[2]},{qw},{qx},{qy},{qz}", max_points=600)
-    for name, o in (("mm.npy", opts), ("mm.pcd", DepthOptions(cloud_scale=0.001, max_points=600))):
+    _, _, b, _ = load_cloud_observation(str(tmp_path / "m.npy"), InputOptions(max_points=600))
+    opts = InputOptions(cloud_scale=0.001, viewpoint=f"{t[0]},{t[1]},{t[2]},{qw},{qx},{qy},{qz}", max_points=600)
+    for name, o in (("mm.npy", opts), ("mm.pcd", InputOptions(cloud_scale=0.001, max_points=600))):
         _, _, a, rec = load_cloud_observation(str(tmp_path / name), o)
         assert np.allclose(a.points, b.points, atol=5e-6) and np.array_equal(a.weights, b.weights), name
         assert rec["cloud_scale"] == 0.001 and rec["points_in_file"] == 492
@@ -358,13 +358,13 @@ def test_an_opengl_cloud_is_named_and_turned_by_the_documented_viewpoint(tmp_pat
     """A cloud in the OpenGL convention (y up, z towards the viewer) lies behind our
     sensor: the error says which --viewpoint turns it, and that viewpoint gives the
     very cloud of the same points in our convention."""
-    from jaxpose.pipeline import DepthOptions, load_cloud_observation
+    from jaxpose.pipeline import InputOptions, load_cloud_observation
 
     ours = POINTS[8:]
     np.save(tmp_path / "cv.npy", ours)
     np.save(tmp_path / "gl.npy", ours * np.float32([1, -1, -1]))
     with pytest.raises(DepthError, match=r"OpenGL convention .* --viewpoint 0,0,0,0,1,0,0"):
         load_cloud_observation(str(tmp_path / "gl.npy"))
-    a = load_cloud_observation(str(tmp_path / "gl.npy"), DepthOptions(viewpoint="0,0,0,0,1,0,0"))[2]
+    a = load_cloud_observation(str(tmp_path / "gl.npy"), InputOptions(viewpoint="0,0,0,0,1,0,0"))[2]
     b = load_cloud_observation(str(tmp_path / "cv.npy"))[2]
     assert np.array_equal(a.points, b.points) and np.array_equal(a.weights, b.weights)

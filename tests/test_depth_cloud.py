@@ -202,11 +202,11 @@ def test_scale_warning_catches_a_cloud_in_the_wrong_unit():
     from jaxpose.demo import DATA
     from jaxpose.io.skeleton_file import load_skeleton
     from jaxpose.objective import Cloud
-    from jaxpose.pipeline import DepthOptions, load_observation, scale_warning
+    from jaxpose.pipeline import InputOptions, load_observation, scale_warning
 
     skel = load_skeleton("spider")
     image, background = (os.path.join(DATA, f"spider_demo{s}.png") for s in ("", "_background"))
-    _, _, cloud = load_observation(image, DepthOptions(background=background))
+    _, _, cloud = load_observation(image, InputOptions(background=background))
     assert scale_warning(skel, cloud, "demo.png") is None
     for factor in (10.0, 1 / 10):
         big = Cloud(cloud.points * factor, cloud.weights)

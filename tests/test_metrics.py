@@ -11,7 +11,7 @@ import pytest
 
 from jaxpose import metrics as M
 from jaxpose.errors import JaxposeError
-from jaxpose.io.results import write_json
+from jaxpose.io.atomic import write_json
 from jaxpose.io.skeleton_file import load_skeleton, shipped_skeletons
 from jaxpose.kinematics import forward_kinematics
 from jaxpose.skeleton import LinkSpec, build_skeleton, rest_pose

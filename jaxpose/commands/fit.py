@@ -194,11 +194,11 @@ def check_conflicts(args, jobs) -> None:
                     raise ConfigError(f"{flag} {out} is also {what}; refusing to overwrite an input")
 
 
-def depth_options(args):
+def input_options(args):
     """The input settings; :class:`ConfigError` for an option that applies to none of the inputs
     (an option for depth images when every input is a point cloud, or the other way round)."""
     from ..io.cloud_file import is_cloud_file
-    from ..pipeline import DepthOptions
+    from ..pipeline import InputOptions
 
     clouds = [is_cloud_file(p) for p in args.depth]
     subject = args.depth[0] if len(clouds) == 1 else "every input"
@@ -212,7 +212,7 @@ def depth_options(args):
         for flag, value in (("--cloud-scale", args.cloud_scale), ("--viewpoint", args.viewpoint)):
             if value is not None:
                 raise ConfigError(f"{flag} is for point clouds; {subject} is a depth image")
-    return DepthOptions(
+    return InputOptions(
         args.intrinsics or "kinect", 0.001 if args.depth_scale is None else args.depth_scale, args.near, args.far,
         args.background, max_points=args.max_points, cloud_scale=1.0 if args.cloud_scale is None else args.cloud_scale,
         viewpoint=args.viewpoint, remove_planes=args.remove_planes,
@@ -232,8 +232,8 @@ def _show_input_warning(message, category, filename, lineno, file=None, line=Non
 
 def run(args: argparse.Namespace) -> int:
     from ..io.cloud_file import is_cloud_file
-    from ..io.results import write_json
-    from ..pipeline import check_input, fit_depth_file, load_fit_skeleton
+    from ..io.atomic import write_json
+    from ..pipeline import check_input, fit_file, load_fit_skeleton
 
     config = config_from_args(args)
     jobs = outputs(args)
@@ -249,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
         from ..viz import _pyplot
 
         _pyplot()  # fail before the search if matplotlib is missing
-    options = depth_options(args)
+    options = input_options(args)
     from ..io.capsules import MAX_CAPSULES
 
     skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
@@ -267,7 +267,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             with warnings.catch_warnings():
                 warnings.showwarning = _show_input_warning
-                out = fit_depth_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
+                out = fit_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
                                      search_lengths=args.search_lengths, skeleton_file=skel_file,
                                      max_capsules=capsules)
         finally:
@@ -288,4 +288,4 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-__all__ = ["register", "run", "config_from_args", "depth_options", "outputs"]
+__all__ = ["register", "run", "config_from_args", "input_options", "outputs"]

@@ -1,8 +1,8 @@
-"""File formats: skeletons, depth images, point clouds, intrinsics and results (the I/O edge)."""
+"""File formats: skeletons, depth images, point clouds, intrinsics, atomic writes and JSON (the I/O edge)."""
 
+from .atomic import atomic_write, write_json
 from .cloud_file import load_points
 from .depth_file import load_depth, parse_intrinsics, save_depth_png
-from .results import atomic_write, write_json
 from .skeleton_file import load_skeleton, shipped_skeletons, skeleton_from_dict
 
 __all__ = [

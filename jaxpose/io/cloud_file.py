@@ -477,7 +477,7 @@ def to_sensor_frame(points: np.ndarray, viewpoint) -> np.ndarray:
 
 def save_points_ply(path: str, points: np.ndarray) -> None:
     """Write ``(M, 3)`` points as a binary little-endian PLY (float x, y, z), atomically."""
-    from .results import atomic_write
+    from .atomic import atomic_write
 
     pts = np.ascontiguousarray(points, "<f4").reshape(-1, 3)
     head = (f"ply\nformat binary_little_endian 1.0\ncomment jaxpose: sensor frame (x right, y down, z forward), "

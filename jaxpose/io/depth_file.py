@@ -286,7 +286,7 @@ def save_depth_png(path: str, depth_m: np.ndarray, depth_scale: float = 0.001) -
     """Write metres as a 16-bit PNG (0 = no measurement), atomically."""
     import imageio.v3 as iio
 
-    from .results import atomic_write
+    from .atomic import atomic_write
 
     d = np.asarray(depth_m, np.float64) / depth_scale
     d = np.where(np.isfinite(d) & (d > 0), np.round(d), 0)

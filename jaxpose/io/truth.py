@@ -31,8 +31,8 @@ import numpy as np
 
 from ..errors import JaxposeError
 from ..skeleton import JOINT_DOF, Pose, Skeleton
+from .atomic import write_json
 from .depth_file import save_depth_png
-from .results import write_json
 
 
 class TruthError(JaxposeError):
