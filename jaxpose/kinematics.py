@@ -45,8 +45,8 @@ def _mat3(a, b):
 
 
 def _matvec(R, v):
-    """Batched ``R @ v`` for ``R (..., 3, 3)``, ``v (..., 3)`` (an ``einsum``: as a
-    broadcast sum the search's gradient ran 20% slower)."""
+    """Batched ``R @ v`` for ``R (..., 3, 3)``, ``v (..., 3)`` (an ``einsum``: a
+    broadcast sum ran slower; see docs/performance.md)."""
     return jnp.einsum("...ij,...j->...i", R, v)
 
 
@@ -57,9 +57,8 @@ def _compose(levels, parents, R_root, root_t, R_local, anchor):
     Frames live in an array of ``L + 1 + W`` slots: the links, the root frame (slot
     ``L``) and ``W`` scratch slots that the padding entries of a level write to.
     A scan, not an unrolled loop over the levels: its program does not grow with
-    the depth, and it compiles to fewer kernels even for shallow trees (humanoid,
-    6 levels: the default search's programs compile in about 5 s less, 25-30 s
-    -> 20 s on a 2-core VM, and run as fast).
+    the depth, and it compiles to fewer kernels even for shallow trees, so the
+    search compiles faster and runs as fast (see docs/performance.md).
     """
     L = len(parents)
     D, W = len(levels), max(len(level) for level in levels)

@@ -209,10 +209,9 @@ def scale_warning(skel: Skeleton, cloud: Cloud, source: str) -> str | None:
     than metres; ``None`` otherwise.
 
     The size is the cloud's RMS spread against the rest-pose model's (the scale the search
-    starts from).  On the rendered data sets (52 images) and 14 robot models seen from one
-    side it lay within 0.77 .. 1.2 times the true scale, so 1.5 times beyond the range leaves
-    room for poses and partial views and still catches millimetres read as metres (1000x) or a
-    depth image written at 5000 units per metre and read as millimetres (5x)."""
+    starts from).  The margin leaves room for poses and partial views and still catches
+    millimetres read as metres (1000x) or a depth image written at 5000 units per metre and
+    read as millimetres (5x) (see docs/experiments.md)."""
     from .search.fit import rest_model  # the search module's, not the package's ``fit``
 
     ratio = float(cloud_spread(cloud) / rest_model(skel).spread)

@@ -252,9 +252,8 @@ def link_capsule(shapes: list[Shape]):
     (:func:`enclosing_capsule`), except for a link made of meshes only, whose capsule is fitted to the
     meshes' surface (:func:`surface_capsule`).  An enclosing capsule is exact for a capsule and tight
     for a cylinder, but much fatter than most meshes (a robot arm's rounded links), and the objective
-    scores the distance to the capsule's surface from outside and inside alike: MuJoCo renders of two
-    mesh arms, 4 views each, symmetric PCP 59% -> 84% and 36% -> 66%, median MPJPE 31 -> 12 and 57 -> 18 mm
-    (docs/experiments.md)."""
+    scores the distance to the capsule's surface from outside and inside alike, so fitted capsules
+    place mesh arms far better (see docs/robot_files.md)."""
     start, d, length, radius = enclosing_capsule(shapes)
     shapes = [s for s in shapes if len(s.centres)]
     if not shapes or any(s.surface is None for s in shapes) or radius <= 0:
