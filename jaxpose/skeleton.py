@@ -26,6 +26,9 @@ along ``axis`` (rest frame), ``R_joint = I`` and the anchor moves by
 
 Parameters (:class:`Pose`) are a pytree in physical units.  The search works on a
 flat genome ``g`` in ``[0, 1]^D`` (see :mod:`jaxpose.genome`).
+
+Over 400 lines because :func:`build_skeleton` validates every field of every link
+with its own error message, beside the fields it fills.
 """
 
 from __future__ import annotations
