@@ -12,7 +12,8 @@ import argparse
 import json
 import os
 import sys
-import tempfile
+
+from outputs import log, pyplot, save_figure
 
 METHODS = (("kernel", "jaxpose kernel", "C0"), ("naive_vmap", "naive jax.vmap", "C1"), ("numpy", "NumPy loop", "C2"))
 MARKERS = {8: "o", 17: "s", 40: "^"}
@@ -21,16 +22,13 @@ MARKERS = {8: "o", 17: "s", 40: "^"}
 def plot_scaling(results: dict, path: str) -> str | None:
     """Write the scaling plot of ``results`` (bench.json's content) to ``path``; None if impossible."""
     try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        plt = pyplot()
     except ImportError:
-        print("bench_plot: matplotlib is not installed, no scaling plot (pip install matplotlib)", flush=True)
+        log("bench_plot: matplotlib is not installed, no scaling plot (pip install matplotlib)")
         return None
     recs = [r for r in results.get("configs", {}).values() if r.get("done")]
     if not recs:
-        print("bench_plot: no finished configuration to plot", flush=True)
+        log("bench_plot: no finished configuration to plot")
         return None
     fig, (ax_t, ax_r) = plt.subplots(1, 2, figsize=(12, 6))
     for method, label, colour in METHODS:
@@ -63,18 +61,7 @@ def plot_scaling(results: dict, path: str) -> str | None:
     fig.suptitle(f"jaxpose objective ({results.get('mode')}): {m.get('cpu')}, {m.get('cores_usable')} cores, "
                  f"jax {m.get('jax')} {m.get('backend')}; load avg {m.get('load_average_start')}", fontsize=9)
     fig.tight_layout(rect=(0, 0.14, 1, 1))
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-bench-plot-", suffix=".png", dir=d)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=120)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    save_figure(fig, path, dpi=120)
     return path
 
 

@@ -1,6 +1,8 @@
-"""Shared helpers of the experiment scripts (``paper_table.py``, ``sweep_population.py``).
+"""Shared helpers of the experiment scripts that fit the data sets (``paper_table.py``,
+``sweep_population.py``, ``point_budget.py``, ``far_bounds.py``).
 
-One place for each idea:
+One place for each idea (the machine record is in ``machine.py``, logging, atomic
+files and number formats in ``outputs.py``):
 
 - data sets: :func:`ensure_data` (``make data`` when ``data/`` lacks a model),
   :func:`load_dataset`, :func:`select_images`, :func:`load_image` (depth, cloud, truth);
@@ -10,8 +12,7 @@ One place for each idea:
 - one fit, scored: :func:`fit_image`;
 - the resumable run store: :class:`RunStore` (one JSON file per finished fit) and
   :class:`FitRunner` (skips stored fits, warms the compiler up once per config);
-- the machine: :func:`machine_info`;
-- atomic outputs: :func:`write_json`, :func:`write_csv`, :func:`write_text`, :func:`save_figure`;
+- the machine a fit ran on: :func:`machine_info` (``machine.py``'s, with the code's fingerprint);
 - summaries: :func:`seed_stats`.
 
 The scripts run from the repository root or anywhere else (``python experiments/x.py``).
@@ -19,17 +20,12 @@ The scripts run from the repository root or anywhere else (``python experiments/
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import datetime
 import hashlib
-import io
 import json
 import math
 import os
-import platform
 import re
-import subprocess
 import sys
 import time
 from typing import NamedTuple
@@ -40,16 +36,18 @@ for _p in (ROOT, HERE):
     if _p not in sys.path:
         sys.path.insert(0, _p)
 
-import jax  # noqa: E402
 import numpy as np  # noqa: E402
+from machine import machine_id, now_iso  # noqa: E402
+from machine import machine_info as _machine_info  # noqa: E402
+from outputs import log, rel, write_json  # noqa: E402
 
-from jaxpose.io.fit_result import package_versions  # noqa: E402
-from jaxpose.io.atomic import atomic_write, to_jsonable  # noqa: E402
+from jaxpose.io.atomic import to_jsonable  # noqa: E402
 from jaxpose.io.skeleton_file import load_skeleton  # noqa: E402
 from jaxpose.io.truth import read_links  # noqa: E402
 from jaxpose.metrics import evaluate  # noqa: E402
 from jaxpose.pipeline import InputOptions, load_observation  # noqa: E402
-from jaxpose.search.fit import FitConfig, coarse_switch, fit_cloud  # noqa: E402
+from jaxpose.search import FitConfig, fit_cloud  # noqa: E402
+from jaxpose.search.coarse import coarse_switch  # noqa: E402
 from jaxpose.skeleton import Skeleton  # noqa: E402
 
 DATA_DIR = os.path.join(ROOT, "data")
@@ -57,16 +55,6 @@ RESULTS_DIR = os.path.join(HERE, "results")
 RUNS_DIR = os.path.join(RESULTS_DIR, "runs")  # git-ignored
 MODELS = ("spider", "humanoid")
 METRICS = ("pcp", "pcp_10cm", "pck_10cm", "mpjpe_mm")
-
-
-def log(msg: str = "") -> None:
-    print(msg, flush=True)
-
-
-def rel(path: str) -> str:
-    """A path relative to the repository root when it lies inside it (for messages)."""
-    p = os.path.relpath(os.path.abspath(path), ROOT)
-    return path if p.startswith("..") else p
 
 
 # --------------------------------------------------------------------------- data
@@ -197,7 +185,7 @@ def make_config(base: FitConfig, overrides: dict | None = None) -> FitConfig:
 
 
 def planned_evaluations(config: FitConfig, n_points: int = InputOptions.max_points) -> dict:
-    """Objective and gradient evaluations a fit with ``config`` will count (mirrors jaxpose/search/fit.py).
+    """Objective and gradient evaluations a fit with ``config`` will count (mirrors jaxpose/search/).
 
     ``P`` per generation (the first generation evaluates the initial population); with
     the memetic step (GA) ``m * memetic_steps`` gradients, ``m = min(memetic_top, P)``,
@@ -415,7 +403,7 @@ class FitRunner:
             self.warned.add(label)
             log(f"warning: {label}: the fit counted {got[0]} objective + {got[1]} gradient evaluations, "
                 f"experiments/common.py planned {plan['objective']} + {plan['gradient']}: "
-                "planned_evaluations() no longer mirrors jaxpose/search/fit.py (budgets may not match)")
+                "planned_evaluations() no longer mirrors jaxpose/search/ (budgets may not match)")
 
     def warmup_record(self, ds: Dataset, label: str, config: FitConfig) -> dict | None:
         return self.store.get(self.keys(ds, "", label, config, 0)[1])
@@ -434,137 +422,9 @@ def compile_seconds(warmup: dict | None, records: list[dict]) -> float | None:
 # --------------------------------------------------------------------------- machine
 
 
-def now_iso() -> str:
-    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
-
-
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    if sys.platform == "darwin":
-        try:
-            return subprocess.run(["sysctl", "-n", "machdep.cpu.brand_string"], capture_output=True, text=True,
-                                  timeout=5).stdout.strip()
-        except (OSError, subprocess.SubprocessError):
-            pass
-    return platform.processor() or platform.machine()
-
-
-def usable_cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:
-        return os.cpu_count() or 1
-
-
-def _git_head() -> str | None:
-    try:
-        out = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                             timeout=5)
-        dirty = subprocess.run(["git", "-C", ROOT, "status", "--porcelain", "--", "jaxpose", "skeletons"],
-                               capture_output=True, text=True, timeout=5).stdout.strip()
-        return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else None
-    except (OSError, subprocess.SubprocessError):
-        return None
-
-
-def machine_id() -> str:
-    """One line naming the machine a timing comes from."""
-    dev = jax.devices()[0]
-    acc = "" if dev.platform == "cpu" else f", {dev.device_kind}"
-    return f"{cpu_model()}, {usable_cores()} cores, {jax.default_backend()}{acc}"
-
-
 def machine_info() -> dict:
-    devs = jax.devices()
-    return {
-        "cpu": cpu_model(),
-        "cores": os.cpu_count(),
-        "cores_usable": usable_cores(),
-        "memory_gib": _memory_gib(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-        "backend": jax.default_backend(),
-        "devices": [f"{d.platform}:{d.device_kind}" for d in devs],
-        "xla_flags": os.environ.get("XLA_FLAGS"),
-        "versions": package_versions(),
-        "jaxpose_code": code_fingerprint(),
-        "git": _git_head(),
-        "date": now_iso(),
-    }
-
-
-def _memory_gib() -> float | None:
-    try:
-        return round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-# --------------------------------------------------------------------------- atomic outputs
-
-
-def _clean(x):
-    """JSON-ready, with NaN/inf as null."""
-    x = to_jsonable(x)
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_clean(v) for v in x]
-    return x
-
-
-def _ensure_dir(path: str) -> None:
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-
-
-def write_json(path: str, data) -> None:
-    _ensure_dir(path)
-    text = json.dumps(_clean(data), indent=2, allow_nan=False) + "\n"
-    atomic_write(path, lambda f: f.write(text))
-
-
-def write_text(path: str, text: str) -> None:
-    _ensure_dir(path)
-    atomic_write(path, lambda f: f.write(text))
-
-
-def write_csv(path: str, rows: list[dict], columns: list[str]) -> None:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, columns, extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: ("" if v is None else (f"{v:.6g}" if isinstance(v, float) else v))
-                    for k, v in r.items()})
-    write_text(path, buf.getvalue())
-
-
-def save_figure(fig, path: str, dpi: int = 120) -> None:
-    """Save a matplotlib figure atomically as PNG and close it."""
-    import matplotlib.pyplot as plt
-
-    _ensure_dir(path)
-    try:
-        atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=dpi), binary=True)
-    finally:
-        plt.close(fig)
-
-
-def pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    """:func:`machine.machine_info` with the fingerprint of the code the fits ran (:data:`CODE_FINGERPRINT`)."""
+    return _machine_info(jaxpose_code=code_fingerprint())
 
 
 # --------------------------------------------------------------------------- summaries

@@ -18,10 +18,9 @@ clouds of that image at several ``max_points``.  Both kernels are compiled first
 then timed side by side (median of ``--repeats`` calls); ``fixup share`` is the
 fraction of (individual, tile) pairs with points that needed every capsule.
 
-Result (docs/performance.md, "Far-capsule bounds"): exact, and slower than the
-kernel in every configuration measured on a 2-core CPU (0.27-0.84x): selecting and
-gathering each tile's nearest capsules costs more than the distances it saves
-with 8-17 capsules.  So the search does not use it.
+Result: exact, but slower than the kernel (selecting and gathering each tile's
+nearest capsules costs more than the distances it saves with 8-17 capsules), so the
+search does not use it; measurements in docs/performance.md, "Far-capsule bounds".
 
 Writes ``far_bounds.{json,md}`` (default ``experiments/results``).  Part of ``make bench``.
 """
@@ -39,22 +38,17 @@ import common as C
 import jax
 import jax.numpy as jnp
 import numpy as np
+from machine import now_iso
+from outputs import log, write_json, write_text
 
-from jaxpose.kinematics import forward_kinematics
-from jaxpose.objective import (
-    _TINY_D2,
-    Cloud,
-    ObjectiveConfig,
-    _link_scan,
-    _prepare,
-    _present,
-    cloud_spread,
-    data_cost,
-    to_blocks,
-)
-from jaxpose.pipeline import load_observation
-from jaxpose.search.fit import FitConfig, search_epoch, search_init
 from jaxpose.genome import decode
+from jaxpose.geometry import TINY_D2
+from jaxpose.kinematics import forward_kinematics
+from jaxpose.objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, to_blocks
+from jaxpose.objective.cloud import present as present_points
+from jaxpose.objective.data import _link_scan, _prepare  # the kernel's own loop, to measure the variant against it
+from jaxpose.pipeline import load_observation
+from jaxpose.search import FitConfig, Fitter
 
 POINTS = (1024, 4096, 16384)
 kernel = jax.jit(data_cost)
@@ -67,7 +61,7 @@ def spatial_order(cloud: Cloud, tile: int) -> Cloud:
     """The points reordered so that runs of ``tile`` are compact, padding last: sorted
     along the axis of largest extent and halved, as long as the halves stay whole and
     hold at least ``tile`` points; the last groups sorted along their own largest axis."""
-    pts, w = _present(cloud)
+    pts, w = present_points(cloud)
     present = w > 0
     n, groups = pts.shape[0], 1
     while n:
@@ -98,8 +92,8 @@ def _near_pass(bx, by, bz, bw, links, near: int, tile: int):
     dist = jnp.sqrt(jnp.sum(diff * diff, -1))  # tile centres to capsule axes (P, T, L)
     rr, rh = r[:, None], rho[None, :, None]
     bound = jnp.maximum(jnp.maximum(dist - rr, rr - dist) - rh - _SLACK * (dist + rr + rh), 0.0)
-    # the near smallest bounds by repeated minimum (on XLA:CPU 5x faster than top_k
-    # here; an insertion network of selects fused into exponential recomputation)
+    # the near smallest bounds by repeated minimum, faster than top_k or an insertion
+    # network here (docs/performance.md, "Far-capsule bounds")
     picked, ids = [], jnp.arange(L)
     for _ in range(near):
         i = jnp.argmin(bound, -1)
@@ -114,7 +108,7 @@ def _near_pass(bx, by, bz, bw, links, near: int, tile: int):
         ux, uy, uz = U[:, :, j, 0:1], U[:, :, j, 1:2], U[:, :, j, 2:3]
         tj = jnp.clip((px * ux + py * uy + pz * uz - CA[:, :, j, None]) * IV[:, :, j, None], 0.0, 1.0)
         dx, dy, dz = px - A[:, :, j, 0:1] - tj * ux, py - A[:, :, j, 1:2] - tj * uy, pz - A[:, :, j, 2:3] - tj * uz
-        d = jnp.abs(jnp.sqrt(jnp.maximum(dx * dx + dy * dy + dz * dz, _TINY_D2)) - R[:, :, j, None])
+        d = jnp.abs(jnp.sqrt(jnp.maximum(dx * dx + dy * dy + dz * dz, TINY_D2)) - R[:, :, j, None])
         best = jnp.minimum(best, d)
     return best, next_bound, present
 
@@ -143,7 +137,7 @@ def _bounded_block(bx, by, bz, bw, links, near: int, tile: int):
 
 
 def _blocks(cloud: Cloud, block: int):
-    return to_blocks(*_present(cloud), block)
+    return to_blocks(*present_points(cloud), block)
 
 
 def _pending(best, next_bound, present):
@@ -182,24 +176,23 @@ def fixup_share(cloud: Cloud, start, end, radius, near: int, tile: int, block: i
 
 def populations(ds, entry, seed: int):
     """Posed capsules ``(start, end, radius)`` of a default fit's whole population after
-    its first epoch and at its end."""
+    its first epoch and at its last full epoch."""
     skel = ds.skeleton
-    config = FitConfig().for_skeleton(skel)
-    cloud = C.load_image(ds, entry).cloud
-    st = jax.jit(lambda c, k: search_init(c, skel, k, config))(cloud, jax.random.key(seed))
-    E = config.epoch
-    epoch = jax.jit(lambda s: search_epoch(skel, config, s, E)[0])
+    fitter = Fitter(skel, FitConfig())
+    full = [n for n in fitter.epoch_lengths if n == fitter.config.epoch]
+    st = fitter.init(C.load_image(ds, entry).cloud, jax.random.key(seed))
 
     def posed(st):
         g = st.algo_state.population.reshape(-1, st.algo_state.population.shape[-1])
         links = jax.vmap(lambda x: forward_kinematics(skel, decode(skel, st.bounds, x)))(g)
         return links.start, links.end, links.radius
 
-    out = []
-    for k in range(config.generations // E):
-        st = epoch(st)
-        if k in (0, config.generations // E - 1):
-            out.append(((k + 1) * E, posed(st)))
+    out, generation = [], 0
+    for k, length in enumerate(full):
+        st, _ = fitter.step(st, length)
+        generation += length
+        if k in (0, len(full) - 1):
+            out.append((generation, posed(st)))
     return out
 
 
@@ -240,7 +233,7 @@ def main(argv=None) -> int:
     for model in a.models:
         ds = C.load_dataset(model, a.data)
         entry = C.select_images(ds, 1)[0]
-        C.log(f"{model}: the populations of a default fit of {entry['name']} ...")
+        log(f"{model}: the populations of a default fit of {entry['name']} ...")
         pops = populations(ds, entry, a.seed)
         for n in a.points:
             opts = dataclasses.replace(C.depth_options(ds, entry), max_points=n)
@@ -260,18 +253,18 @@ def main(argv=None) -> int:
                            "fixup_share": float(fixup_share(ordered, s, e, r, near, tile)),
                            "max_rel_diff": float(jnp.max(jnp.abs(got - ref) / jnp.abs(ref)))}
                     rows.append(row)
-                    C.log(f"{model:9s} N {n:6d} gen {generation:3d} near {near} tile {tile:3d}: kernel "
+                    log(f"{model:9s} N {n:6d} gen {generation:3d} near {near} tile {tile:3d}: kernel "
                           f"{t_kernel:8.1f} ms, bounded {t:8.1f} ms ({row['speedup']:.2f}x), fix-up "
                           f"{100 * row['fixup_share']:.0f}%, rel diff {row['max_rel_diff']:.1e}")
-    out = {"rows": rows, "machine": C.machine_info(), "finished": C.now_iso()}
-    C.write_json(os.path.join(a.out, "far_bounds.json"), out)
+    out = {"rows": rows, "machine": C.machine_info(), "finished": now_iso()}
+    write_json(os.path.join(a.out, "far_bounds.json"), out)
     lines = [("| model (links) | points | generation | near / tile | kernel ms | bounded ms | speed-up | fix-up share "
               "| max rel diff |"), "|---|---:|---:|---|---:|---:|---:|---:|---:|"]
     lines += [f"| {r['model']} ({r['links']}) | {r['points']} | {r['generation']} | {r['near']} / {r['tile']} | "
               f"{r['kernel_ms']:.1f} | {r['bounded_ms']:.1f} | {r['speedup']:.2f}x | {100 * r['fixup_share']:.0f}% | "
               f"{r['max_rel_diff']:.1e} |" for r in rows]
     text = "\n".join(lines) + "\n"
-    C.write_text(os.path.join(a.out, "far_bounds.md"), text)
+    write_text(os.path.join(a.out, "far_bounds.md"), text)
     print(text)
     bad = [r for r in rows if not r["max_rel_diff"] <= 1e-5]
     if bad:

@@ -16,6 +16,7 @@ import os
 import sys
 import time
 
+from outputs import log
 
 from jaxpose import render as R
 from jaxpose.io.atomic import write_json
@@ -62,7 +63,7 @@ def write_dataset(model: str, out_dir: str, seed: int = 0, quiet: bool = False) 
     write_json(os.path.join(folder, "index.json"), index)
     if not quiet:
         n_occ = sum(1 for e in entries if e["occluded_links"])
-        print(f"{folder}: {len(entries)} images ({n_occ} with a link less than half visible) "
+        log(f"{folder}: {len(entries)} images ({n_occ} with a link less than half visible) "
               f"in {time.time() - t0:.1f} s")
     return index
 

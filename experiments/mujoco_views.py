@@ -337,7 +337,9 @@ def main(argv=None) -> int:
     if problem:
         print(f"mujoco_views: skipped: {problem}")
         return 0
-    from common import machine_id, machine_info  # experiments/ is on the path when run as a script
+    from common import machine_info  # experiments/ is on the path when run as a script
+    from machine import machine_id
+    from outputs import write_text
 
     os.makedirs(args.out, exist_ok=True)
     config = jp.FitConfig(generations=args.generations)
@@ -356,8 +358,7 @@ def main(argv=None) -> int:
                 "max_capsules": MAX_CAPSULES if args.capsules is None else args.capsules,
                 "summary": rows, "views": records})
     table = markdown(rows, machine)
-    with open(os.path.join(args.out, "mujoco_views.md"), "w") as f:
-        f.write(table)
+    write_text(os.path.join(args.out, "mujoco_views.md"), table)
     print(table)
     return 0
 

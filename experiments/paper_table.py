@@ -14,11 +14,12 @@ import argparse
 import os
 import sys
 
-import numpy as np
-
 import common as C
+import numpy as np
+from outputs import log, pyplot, rel, save_figure, write_csv, write_json, write_text
+
 from jaxpose.camera import project
-from jaxpose.search.fit import FitConfig
+from jaxpose.search import FitConfig
 
 # The rows of the table: name -> FitConfig overrides ("objective": ObjectiveConfig overrides).
 # Everything else comes from FitConfig()'s defaults (and --population / --generations).
@@ -101,7 +102,7 @@ def run_fits(args, datasets, images, configs) -> tuple[dict, C.FitRunner]:
     seeds = list(range(args.seeds))
     total = sum(len(images[m]) * len(configs[m]) for m in datasets) * len(seeds)
     runner = C.FitRunner(C.RunStore(RUNS), total)
-    C.log(f"{total} fits: models {', '.join(datasets)}; rows {', '.join(args.algorithms)}; seeds {seeds}; "
+    log(f"{total} fits: models {', '.join(datasets)}; rows {', '.join(args.algorithms)}; seeds {seeds}; "
           + "; ".join(f"{m} {n}: P={c.population} G={c.generations}" for m in datasets for n, c in configs[m].items()))
     records: dict = {m: {n: [] for n in configs[m]} for m in datasets}
     for m, ds in datasets.items():
@@ -110,7 +111,7 @@ def run_fits(args, datasets, images, configs) -> tuple[dict, C.FitRunner]:
                 for entry in images[m]:
                     records[m][name].append(runner.run(ds, entry, name, cfg, seed))
     if runner.skipped:
-        C.log(f"{runner.skipped} of {total} fits were stored already ({C.rel(RUNS)}) and skipped")
+        log(f"{runner.skipped} of {total} fits were stored already ({rel(RUNS)}) and skipped")
     return records, runner
 
 
@@ -191,7 +192,7 @@ CSV_COLUMNS = ["model", "image", "label", "algorithm", "seed", *C.CSV_METRIC_COL
 
 def figure(path, records, datasets, images, n_per_model):
     """Depth image with the poses of FIGURE_VARIANTS (seed 0) over it; truth as a thin black line."""
-    plt = C.pyplot()
+    plt = pyplot()
     cols = [v for v in FIGURE_VARIANTS if any(records[m].get(v) for m in records)]
     cols = cols or [v for v in VARIANTS if any(records[m].get(v) for m in records)]
     examples = []
@@ -242,7 +243,7 @@ def figure(path, records, datasets, images, n_per_model):
             ax.set_title(f"{v}: PCP {rec['symmetric']['pcp']:.2f}", fontsize=8)
     fig.suptitle("depth image; fitted links (colour) and truth (thin black), seed 0", fontsize=9)
     fig.tight_layout()
-    C.save_figure(fig, path)
+    save_figure(fig, path)
     return True
 
 
@@ -258,19 +259,19 @@ def main(argv=None) -> int:
     try:
         records, runner = run_fits(args, datasets, images, configs)
     except KeyboardInterrupt:
-        C.log(f"\ninterrupted: every finished fit is stored in {C.rel(RUNS)}; run the same command to resume")
+        log(f"\ninterrupted: every finished fit is stored in {rel(RUNS)}; run the same command to resume")
         return 130
     table = summarise(records, runner, datasets, configs)
     machine = C.machine_info()
     machines = sorted({r["machine"] for rows in records.values() for recs in rows.values() for r in recs})
     if len(machines) > 1:
-        C.log(f"warning: the stored fits come from {len(machines)} machines: {machines} (timings mix)")
+        log(f"warning: the stored fits come from {len(machines)} machines: {machines} (timings mix)")
     doc = {
         "title": "GA vs hill climbing at equal evaluation budgets (jaxpose reproduction of the paper's table)",
         "quick": args.quick,
         "machine": machine,
         "machines_in_runs": machines,
-        "data": {m: {"folder": C.rel(ds.folder), "index_sha256": ds.fingerprint, "seed": ds.index.get("seed"),
+        "data": {m: {"folder": rel(ds.folder), "index_sha256": ds.fingerprint, "seed": ds.index.get("seed"),
                      "images": [e["name"] for e in images[m]]} for m, ds in datasets.items()},
         "seeds": list(range(args.seeds)),
         "budget": budget,
@@ -284,15 +285,15 @@ def main(argv=None) -> int:
     }
     os.makedirs(args.out, exist_ok=True)
     paths = {x: os.path.join(args.out, f"paper_table.{x}") for x in ("json", "csv", "md")}
-    C.write_json(paths["json"], doc)
+    write_json(paths["json"], doc)
     rows = [C.flat_row(r) for rows in records.values() for recs in rows.values() for r in recs]
-    C.write_csv(paths["csv"], rows, CSV_COLUMNS)
-    C.write_text(paths["md"], markdown(table, machine, budget, args))
+    write_csv(paths["csv"], rows, CSV_COLUMNS)
+    write_text(paths["md"], markdown(table, machine, budget, args))
     fig_path = os.path.join(args.out, "paper_figure.png")
     made = figure(fig_path, records, datasets, images, args.figure_images)
-    C.log("")
-    C.log(markdown(table, machine, budget, args))
-    C.log("wrote " + ", ".join(C.rel(p) for p in [*paths.values(), *([fig_path] if made else [])]))
+    log("")
+    log(markdown(table, machine, budget, args))
+    log("wrote " + ", ".join(rel(p) for p in [*paths.values(), *([fig_path] if made else [])]))
     return 0
 
 

@@ -23,11 +23,13 @@ import dataclasses
 import os
 import sys
 
-import numpy as np
-
 import common as C
+import numpy as np
+from machine import now_iso
+from outputs import log, write_json, write_text
+
 from jaxpose.pipeline import InputOptions, load_observation
-from jaxpose.search.fit import FitConfig
+from jaxpose.search import FitConfig
 
 POINTS = (256, 512, 1024, 2048)
 COARSE = (256,)
@@ -77,22 +79,22 @@ def main(argv=None) -> int:
                 pts.append(int(np.sum(np.asarray(img.cloud.weights) > 0)))
                 if i > 0 or len(entries) == 1:
                     secs.append(rec["wall_seconds"])
-                C.log(f"{model:9s} max_points {n:5d} coarse {coarse:5d} {e['name']:18s} PCP {pcp[-1]:.3f}  "
+                log(f"{model:9s} max_points {n:5d} coarse {coarse:5d} {e['name']:18s} PCP {pcp[-1]:.3f}  "
                       f"{rec['wall_seconds']:6.2f} s")
             rows.append({"model": model, "max_points": n, "coarse_points": coarse,
                          "points_used": float(np.mean(pts)),
                          "link_accuracy": float(np.mean(pcp)), "seconds_per_image": float(np.median(secs)),
                          "images": len(entries), "seed": a.seed,
                          "generations": cfg.for_skeleton(ds.skeleton).generations})
-    out = {"rows": rows, "machine": C.machine_info(), "finished": C.now_iso()}
-    C.write_json(os.path.join(a.out, "point_budget.json"), out)
+    out = {"rows": rows, "machine": C.machine_info(), "finished": now_iso()}
+    write_json(os.path.join(a.out, "point_budget.json"), out)
     lines = ["| model | max_points | coarse_points (first half) | points used (mean) | link accuracy "
              "| s / image (median, warm) |",
              "|---|---:|---:|---:|---:|---:|"]
     lines += [f"| {r['model']} | {r['max_points']} | {r['coarse_points'] or '– (all)'} | {r['points_used']:.0f} | "
               f"{100 * r['link_accuracy']:.1f}% | {r['seconds_per_image']:.2f} |" for r in rows]
     text = "\n".join(lines) + "\n"
-    C.write_text(os.path.join(a.out, "point_budget.md"), text)
+    write_text(os.path.join(a.out, "point_budget.md"), text)
     print(text)
     return 0
 

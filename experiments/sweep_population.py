@@ -20,10 +20,12 @@ import math
 import os
 import sys
 
-import numpy as np
-
 import common as C
-from jaxpose.search.fit import FitConfig
+import numpy as np
+from machine import machine_id
+from outputs import log, pyplot, rel, save_figure, write_csv, write_json
+
+from jaxpose.search import FitConfig
 
 POPULATIONS = (16, 64, 256, 1024, 4096)  # powers of 4
 MODES = ("evals", "time")
@@ -143,7 +145,7 @@ class Sweep:
         if plan is None:
             recs = self.probe(ds, algorithm, p_ref)
             plan = {"seconds": float(np.median([r["wall_seconds"] for r in recs])), "population": p_ref,
-                    "generations": cfg.generations, "from_fits": len(recs), "machine": C.machine_id()}
+                    "generations": cfg.generations, "from_fits": len(recs), "machine": machine_id()}
             self.store.put(key, plan)
         return plan["seconds"], plan
 
@@ -159,15 +161,15 @@ class Sweep:
             tau, fixed = (float(np.median(x)) for x in zip(*map(timing_model, recs)))
             plan = {"seconds": seconds, "seconds_per_generation": tau, "fixed_seconds": fixed,
                     "generations": generations_for(seconds, tau, fixed), "from_fits": len(recs),
-                    "machine": C.machine_id()}
+                    "machine": machine_id()}
             self.store.put(key, plan)
-            C.log(f"         {ds.model:<8} {algorithm}-P{population}: {1000 * tau:.2f} ms/generation + "
+            log(f"         {ds.model:<8} {algorithm}-P{population}: {1000 * tau:.2f} ms/generation + "
                   f"{fixed:.2f} s fixed -> {plan['generations']} generations for {seconds:.2f} s")
         return C.make_config(cfg_a, {"generations": plan["generations"]}), plan
 
     def run(self):
         a = self.args
-        C.log(f"{self.runner.total} fits: models {', '.join(a.models)}; algorithms {', '.join(a.algorithms)}; "
+        log(f"{self.runner.total} fits: models {', '.join(a.models)}; algorithms {', '.join(a.algorithms)}; "
               f"populations {a.populations} x {a.islands} island(s); modes {', '.join(a.modes)}; "
               f"budget {a.budget}; "
               f"{len(self.seeds)} seed(s)")
@@ -185,7 +187,7 @@ class Sweep:
                         self.plans[f"{m}/{alg}/P{p}"] = plan
                         self.fits(ds, alg, p, cfg, "time", {"target_seconds": seconds})
         if self.runner.skipped:
-            C.log(f"{self.runner.skipped} fits were stored already ({C.rel(RUNS)}) and skipped")
+            log(f"{self.runner.skipped} fits were stored already ({rel(RUNS)}) and skipped")
 
 
 def aggregate(sweep: Sweep) -> list[dict]:
@@ -223,7 +225,7 @@ CSV_COLUMNS = ["mode", "model", "algorithm", "population", "generations", "image
 
 
 def plot(path, summary, models):
-    plt = C.pyplot()
+    plt = pyplot()
     from matplotlib.ticker import FormatStrFormatter
 
     fig, axes = plt.subplots(len(models), 2, figsize=(10, 3.6 * len(models)), squeeze=False)
@@ -261,7 +263,7 @@ def plot(path, summary, models):
             ax.grid(alpha=0.3)
         ax_p.legend(fontsize=7)
     fig.tight_layout()
-    C.save_figure(fig, path)
+    save_figure(fig, path)
 
 
 def main(argv=None) -> int:
@@ -270,15 +272,15 @@ def main(argv=None) -> int:
     try:
         sweep.run()
     except KeyboardInterrupt:
-        C.log(f"\ninterrupted: every finished fit is stored in {C.rel(RUNS)}; run the same command to resume")
+        log(f"\ninterrupted: every finished fit is stored in {rel(RUNS)}; run the same command to resume")
         return 130
     summary = aggregate(sweep)
     os.makedirs(args.out, exist_ok=True)
     paths = {x: os.path.join(args.out, f"sweep_population.{x}") for x in ("csv", "json", "png")}
     rows = [{**C.flat_row(x["record"]), "mode": x["mode"], "budget": x.get("budget"),
              "target_seconds": x.get("target_seconds")} for x in sweep.rows]
-    C.write_csv(paths["csv"], rows, CSV_COLUMNS)
-    C.write_json(paths["json"], {
+    write_csv(paths["csv"], rows, CSV_COLUMNS)
+    write_json(paths["json"], {
         "title": "population sweep at a fixed evaluation budget and at a fixed wall time",
         "quick": args.quick,
         "machine": C.machine_info(),
@@ -292,14 +294,14 @@ def main(argv=None) -> int:
         "summary": summary,
     })
     plot(paths["png"], summary, args.models)
-    C.log("")
-    C.log(f"{'mode':<6} {'model':<9} {'alg':<4} {'P':>5} {'G':>6} {'accuracy':>14} {'s/fit':>7} {'evals':>14}")
+    log("")
+    log(f"{'mode':<6} {'model':<9} {'alg':<4} {'P':>5} {'G':>6} {'accuracy':>14} {'s/fit':>7} {'evals':>14}")
     for s in summary:
         std = "" if s["link_accuracy_std"] is None else f" ± {100 * s['link_accuracy_std']:.1f}"
-        C.log(f"{s['mode']:<6} {s['model']:<9} {s['algorithm']:<4} {s['population']:>5} {s['generations']:>6} "
+        log(f"{s['mode']:<6} {s['model']:<9} {s['algorithm']:<4} {s['population']:>5} {s['generations']:>6} "
               f"{100 * s['link_accuracy']:>6.1f}%{std:<7} {s['seconds_per_image']:>7.2f} "
               f"{s['objective_evaluations']:>7}+{s['gradient_evaluations']:<6}")
-    C.log("wrote " + ", ".join(C.rel(p) for p in paths.values()))
+    log("wrote " + ", ".join(rel(p) for p in paths.values()))
     return 0
 
 

@@ -4,15 +4,10 @@ Oracle: the double-loop NumPy cost of tests/oracles.py."""
 
 from __future__ import annotations
 
-import os
-import sys
-
+import far_bounds
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "experiments"))
-import far_bounds
 from oracles import brute_cost
 
 from jaxpose.objective import Cloud

@@ -5,14 +5,11 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 
+import common
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "experiments"))
-import common  # noqa: E402
-
-from jaxpose.search.fit import FitConfig  # noqa: E402
+from jaxpose.search import FitConfig
 
 
 @pytest.fixture

@@ -11,19 +11,16 @@ with a renderer jaxpose did not write.  Skipped where MuJoCo has no OpenGL conte
 from __future__ import annotations
 
 import os
-import sys
 
+import mujoco_views as MV
 import numpy as np
 import pytest
-
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "experiments"))
-import mujoco_views as MV  # noqa: E402
 
 pytest.importorskip("mujoco")
 _PROBLEM = MV.gl_problem()
 pytestmark = pytest.mark.skipif(_PROBLEM is not None, reason=str(_PROBLEM))
 
-FIXTURES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fixtures")
+FIXTURES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "fixtures")
 
 
 def _seg_distance(P, a, b):
