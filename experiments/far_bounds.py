@@ -46,7 +46,7 @@ from jaxpose.geometry import TINY_D2
 from jaxpose.kinematics import forward_kinematics
 from jaxpose.objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, to_blocks
 from jaxpose.objective.cloud import present as present_points
-from jaxpose.objective.data import _link_scan, _prepare  # the kernel's own loop, to measure the variant against it
+from jaxpose.objective.data import link_major, nearest_capsule  # the kernel's own loop, to compare against
 from jaxpose.pipeline import load_observation
 from jaxpose.search import FitConfig, Fitter
 
@@ -128,7 +128,7 @@ def _bounded_block(bx, by, bz, bw, links, near: int, tile: int):
         (idx,) = jnp.nonzero(flat, size=cap, fill_value=P * T)
         i = jnp.minimum(idx, P * T - 1)
         who, where = i // T, i % T
-        d, _ = _link_scan(px[where], py[where], pz[where], *(x[:, who] for x in links), with_arg=False)
+        d, _ = nearest_capsule(px[where], py[where], pz[where], *(x[:, who] for x in links), with_arg=False)
         best = best.reshape(P * T, tile).at[idx].set(d, mode="drop").reshape(P, T, tile)
         return flat.at[idx].set(False, mode="drop").reshape(P, T), best
 
@@ -149,7 +149,7 @@ def _pending(best, next_bound, present):
 def bounded_cost(cloud: Cloud, sigma, start, end, radius, near: int, tile: int, block: int = 256):
     """The data term with far-capsule bounds (same value as ``data_cost``)."""
     px, py, pz, wb = _blocks(cloud, block)
-    links = _prepare(start, end, radius)
+    links = link_major(start, end, radius)
 
     def one(total, xs):
         best = _bounded_block(*xs, links, near, tile)
@@ -162,7 +162,7 @@ def bounded_cost(cloud: Cloud, sigma, start, end, radius, near: int, tile: int, 
 @partial(jax.jit, static_argnames=("near", "tile", "block"))
 def fixup_share(cloud: Cloud, start, end, radius, near: int, tile: int, block: int = 256):
     """Fraction of (individual, tile) pairs with weighted points that need every capsule."""
-    links = _prepare(start, end, radius)
+    links = link_major(start, end, radius)
 
     def one(acc, xs):
         best, next_bound, present = _near_pass(*xs, links, near, tile)

@@ -133,10 +133,7 @@ def depth_to_cloud(
             size = lambda a: f"{a.shape[1]}x{a.shape[0]}" if a.ndim == 2 else f"of shape {a.shape}"  # noqa: E731
             raise DepthError(f"{source}: background image is {size(background)}, the depth image is {size(depth)}")
     check_intrinsics(intrinsics, depth.shape)
-    if not (np.isfinite(near) and np.isfinite(far) and 0 <= near < far):
-        raise DepthError(f"{source}: near/far range must satisfy 0 <= near < far, got near={near}, far={far}")
-    if max_points < 1:
-        raise DepthError(f"{source}: max_points must be >= 1, got {max_points}")
+    _check_sampling(near, far, max_points, source)
     pts, valid = depth_to_points(depth, intrinsics)
     n_valid = int(valid.sum())
     if n_valid == 0:
@@ -230,6 +227,13 @@ def off_planes(
     return keep
 
 
+def _check_sampling(near: float, far: float, max_points: int, source: str) -> None:
+    if not (np.isfinite(near) and np.isfinite(far) and 0 <= near < far):
+        raise DepthError(f"{source}: near/far range must satisfy 0 <= near < far, got near={near}, far={far}")
+    if max_points < 1:
+        raise DepthError(f"{source}: max_points must be >= 1, got {max_points}")
+
+
 def _drop_planes(pts, idx, count: int, tolerance: float, seed: int, source: str) -> np.ndarray:
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
         raise DepthError(f"{source}: remove_planes must be an integer >= 0, got {count!r}")
@@ -282,10 +286,7 @@ def sensor_points_to_cloud(
         pts = np.asarray(points, np.float32)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise DepthError(f"{source}: expected points of shape (M, 3), got {pts.shape}")
-    if not (np.isfinite(near) and np.isfinite(far) and 0 <= near < far):
-        raise DepthError(f"{source}: near/far range must satisfy 0 <= near < far, got near={near}, far={far}")
-    if max_points < 1:
-        raise DepthError(f"{source}: max_points must be >= 1, got {max_points}")
+    _check_sampling(near, far, max_points, source)
     finite = np.all(np.isfinite(pts), -1)
     if not finite.any():
         raise DepthError(f"{source}: the cloud holds no point (every point is NaN or inf)")

@@ -32,3 +32,24 @@ class InputWarning(UserWarning):
 
     The command line prints it as ``jaxpose: warning: <message>``; a fit's result
     file lists it under ``warnings``."""
+
+
+def require_finite(name: str, value) -> float:
+    """``value`` as a float; :class:`ConfigError` ``"<name> must be a finite number"`` otherwise."""
+    import numpy as np
+
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not np.isfinite(value):
+        raise ConfigError(f"{name} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def require_integer(name: str, value, lo: int | None = None) -> int:
+    """``value`` as an int (at least ``lo``); :class:`ConfigError` naming ``name`` otherwise."""
+    import numpy as np
+
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ConfigError(f"{name} must be an integer, got {value!r}")
+    if lo is not None and value < lo:
+        raise ConfigError(f"{name} must be >= {lo}, got {value}")
+    return int(value)

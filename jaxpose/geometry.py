@@ -19,9 +19,10 @@ import jax.numpy as jnp
 import numpy as np
 
 _EPS = 1e-12
-# Floor of a squared distance under the square root: keeps the gradient finite where two
-# segments meet without biasing distances (see jaxpose/objective.py's _TINY_D2).
-_TINY_D2 = 1e-30
+# Floor of a squared distance under the square root: keeps the gradient finite where the
+# distance is zero without biasing distances (a floor of 1e-12 m^2 made every distance at
+# least 1 micrometre, which is not small next to sigma at tiny scales).
+TINY_D2 = 1e-30
 # |sin(pitch)| above this is gimbal lock: roll and yaw are no longer told apart.
 _GIMBAL = 1 - 1e-9
 
@@ -165,4 +166,4 @@ def closest_points(p1, q1, p2, q2, xp=None):
     s = xp.where(a_ok, xp.where(e_ok, s, xp.clip(-c / a_s, 0.0, 1.0)), 0.0)
     t = xp.where(e_ok, xp.where(a_ok, t, xp.clip(f / e_s, 0.0, 1.0)), 0.0)
     diff = r + s * d1 - t * d2
-    return xp.sqrt(xp.maximum(_dot3(diff, diff), _TINY_D2)), s, t, diff
+    return xp.sqrt(xp.maximum(_dot3(diff, diff), TINY_D2)), s, t, diff

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .camera import Intrinsics, cloud_view, depth_to_cloud, sensor_points_to_cloud
-from .errors import ConfigError, DepthError, InputWarning
+from .errors import ConfigError, DepthError, InputWarning, require_finite, require_integer
 from .io.cloud_file import is_cloud_file, load_points, parse_viewpoint, to_sensor_frame
 from .io.depth_file import parse_intrinsics, read_depth
 from .io.fit_result import file_sha256, result_document
@@ -20,6 +20,7 @@ from .skeleton import Skeleton
 
 
 MAX_PLANES = 8
+MAX_POINTS = 1_000_000  # points sampled from one input at most
 
 
 @dataclass(frozen=True)
@@ -51,36 +52,27 @@ class InputOptions:
 
     def validate(self) -> "InputOptions":
         """Raise :class:`ConfigError` for an impossible setting; return ``self``."""
-        def num(name, v):
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v):
-                raise ConfigError(f"{name} must be a finite number, got {v!r}")
-            return float(v)
-
-        near, far = num("near", self.near), num("far", self.far)
+        near, far = require_finite("near", self.near), require_finite("far", self.far)
         if not 0 <= near < far:
-            raise ConfigError(f"near/far: need 0 <= near < far (metres), got near={near}, far={far}")
-        if not num("depth_scale", self.depth_scale) > 0:
+            raise ConfigError(f"near {near} / far {far}: need 0 <= near < far (metres)")
+        if not require_finite("depth_scale", self.depth_scale) > 0:
             raise ConfigError(f"depth_scale must be > 0 (metres per stored unit), got {self.depth_scale}")
-        if not num("cloud_scale", self.cloud_scale) > 0:
+        if not require_finite("cloud_scale", self.cloud_scale) > 0:
             raise ConfigError(f"cloud_scale must be > 0 (metres per unit of the cloud file), got {self.cloud_scale}")
         if self.viewpoint is not None:
             try:
                 parse_viewpoint(self.viewpoint)
             except ValueError as e:
                 raise ConfigError(f"viewpoint {self.viewpoint!r}: {e}") from None
-        if num("background_tolerance", self.background_tolerance) < 0:
+        if require_finite("background_tolerance", self.background_tolerance) < 0:
             raise ConfigError(f"background_tolerance must be >= 0 metres, got {self.background_tolerance}")
-        if num("plane_tolerance", self.plane_tolerance) < 0:
+        if require_finite("plane_tolerance", self.plane_tolerance) < 0:
             raise ConfigError(f"plane_tolerance must be >= 0 metres, got {self.plane_tolerance}")
-        for name in ("max_points", "sample_seed", "remove_planes"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
-                raise ConfigError(f"{name} must be an integer, got {v!r}")
-        if self.max_points < 1:
-            raise ConfigError(f"max_points must be >= 1, got {self.max_points}")
-        if self.sample_seed < 0:
-            raise ConfigError(f"sample_seed must be >= 0, got {self.sample_seed}")
-        if not 0 <= self.remove_planes <= MAX_PLANES:
+        require_integer("max_points", self.max_points, 1)
+        if self.max_points > MAX_POINTS:
+            raise ConfigError(f"max_points must be <= {MAX_POINTS}, got {self.max_points}")
+        require_integer("sample_seed", self.sample_seed, 0)
+        if not 0 <= require_integer("remove_planes", self.remove_planes) <= MAX_PLANES:
             raise ConfigError(f"remove_planes must lie within 0 .. {MAX_PLANES}, got {self.remove_planes}")
         return self
 
@@ -212,7 +204,7 @@ def scale_warning(skel: Skeleton, cloud: Cloud, source: str) -> str | None:
     starts from).  The margin leaves room for poses and partial views and still catches
     millimetres read as metres (1000x) or a depth image written at 5000 units per metre and
     read as millimetres (5x) (see docs/experiments.md)."""
-    from .search.fit import rest_model  # the search module's, not the package's ``fit``
+    from .rest_model import rest_model
 
     ratio = float(cloud_spread(cloud) / rest_model(skel).spread)
     lo, hi = float(skel.scale_lo), float(skel.scale_hi)

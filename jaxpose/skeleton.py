@@ -416,17 +416,3 @@ def _pair(v, link, what, fail):
     if a[0] > a[1]:
         fail(f"inverted {what} {a.tolist()} (lo > hi)", link)
     return float(a[0]), float(a[1])
-
-
-# Names of jaxpose.genome and jaxpose.geometry that jaxpose/search still imports from here (a lazy
-# lookup: jaxpose.genome imports this module)
-_MOVED = {"Bounds": "genome", "GenomeLayout": "genome", "ROOT_ANGLE_LIMITS": "genome", "decode": "genome",
-          "encode": "genome", "genome_bounds": "genome", "genome_layout": "genome", "axis_angle_matrix": "geometry"}
-
-
-def __getattr__(name):  # imported by jaxpose/search until it moves
-    if name in _MOVED:
-        import importlib
-
-        return getattr(importlib.import_module(f"{__package__}.{_MOVED[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

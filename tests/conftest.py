@@ -7,7 +7,7 @@ import sys
 # depend on (or fill) a user's cache, so it is off here.  tests/test_cli.py turns
 # it on explicitly where it is tested.
 os.environ["JAXPOSE_CACHE_DIR"] = "0"
-# MuJoCo picks its OpenGL platform when it is imported; tests/test_mujoco_views.py renders
+# MuJoCo picks its OpenGL platform when it is imported; tests/experiments/test_mujoco_views.py renders
 # off screen (headless EGL), so ask for that before any test imports mujoco.
 if sys.platform.startswith("linux"):  # MuJoCo refuses MUJOCO_GL=egl (at import) elsewhere
     os.environ.setdefault("MUJOCO_GL", "egl")

@@ -1,7 +1,7 @@
 """Independent NumPy (float64) oracles for the pure core.
 
 Written from the documented conventions (``jaxpose/skeleton.py`` module docstring,
-``jaxpose/io/skeleton_file.py`` schema, ``jaxpose/objective.py`` equation 1), not
+``jaxpose/io/skeleton_file.py`` schema, ``jaxpose/objective/__init__.py`` equation 1), not
 from the JAX code: a recursive forward kinematics over a *description* of the
 links (plain dicts in the native-file schema, angles in degrees), and a brute-force
 point-to-capsule-surface cost.
@@ -210,7 +210,7 @@ def segment_segment_distance(p1, q1, p2, q2, iters: int = 60):
 
 
 def collision_penalty(start, end, radius, parents, rest_start, rest_end, rest_radius, margin, sigma):
-    """The collision term by double loop over link pairs (``jaxpose/objective.py`` docstring):
+    """The collision term by double loop over link pairs (``jaxpose/objective/__init__.py`` docstring):
     every pair but a link and its parent; the clearance ``rho margin (r_i + r_j)`` with
     ``rho = min(1, d_rest / (margin (R_i + R_j)))`` from the rest pose's distance and
     radii ``R`` (0 for two lines)."""

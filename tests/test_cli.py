@@ -96,7 +96,7 @@ def test_result_json_schema(ga_result, scene):
     assert doc["evaluations"]["point_to_capsule_distances"] > 0
     cfg = doc["config"]
     assert (cfg["algorithm"], cfg["population"], cfg["generations"]) == ("ga", 32, 10)
-    assert cfg["memetic_every"] == 0 and cfg["final_refine_steps"] == 0 and cfg["islands"] == 1
+    assert cfg["memetic_steps"] == 0 and cfg["final_refine_steps"] == 0 and cfg["islands"] == 1
     assert cfg["objective"]["free_space_weight"] == 0
     assert doc["versions"]["jaxpose"] and doc["versions"]["jax"] and doc["versions"]["numpy"]
     assert doc["timing"]["wall_seconds"] > 0

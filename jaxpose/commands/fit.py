@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
-import math
 import os
+import re
 import sys
 import warnings
 
@@ -14,9 +15,6 @@ from ..objective import ObjectiveConfig
 from ..search import FitConfig
 from .progress import ProgressBar, check_output_path
 from .robot_options import add_max_capsules, check_max_capsules, check_robot_option
-
-MAX_POINTS = 1_000_000
-
 
 def register(sub) -> None:
     p = sub.add_parser("fit", help="fit a skeleton to depth images or point clouds",
@@ -77,55 +75,43 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _finite(args, dest: str, flag: str) -> float:
-    v = getattr(args, dest)
-    if not math.isfinite(v):
-        raise ConfigError(f"{flag} must be a finite number, got {v}")
-    return v
+# The settings' names in the config classes' errors, as the command line's flags.
+FLAGS = {
+    "population": "--population", "generations": "--generations", "islands": "--islands",
+    "coarse_points": "--coarse-points", "objective.sigma_factor": "--sigma-factor",
+    "objective.free_space_weight": "--free-space-weight", "objective.collision_weight": "--collision-weight",
+    "near": "--near", "far": "--far", "depth_scale": "--depth-scale", "cloud_scale": "--cloud-scale",
+    "viewpoint": "--viewpoint", "max_points": "--max-points", "remove_planes": "--remove-planes",
+}
+
+
+@contextlib.contextmanager
+def as_flags():
+    """A :class:`ConfigError` of :meth:`FitConfig.validate` or :meth:`InputOptions.validate`
+    re-raised with the settings it names (at the start, or after ``/ ``) as flags."""
+    try:
+        yield
+    except ConfigError as e:
+        name = re.compile(r"(?:^|(?<=/ ))[a-z_.]+")
+        raise ConfigError(name.sub(lambda m: FLAGS.get(m.group(0), m.group(0)), str(e))) from None
+
+
+def _input_values(args):
+    """The input settings of the command line, not yet checked against the inputs' kinds."""
+    from ..pipeline import InputOptions
+
+    return InputOptions(
+        args.intrinsics or "kinect", 0.001 if args.depth_scale is None else args.depth_scale, args.near, args.far,
+        args.background, max_points=args.max_points, cloud_scale=1.0 if args.cloud_scale is None else args.cloud_scale,
+        viewpoint=args.viewpoint, remove_planes=args.remove_planes,
+    )
 
 
 def config_from_args(args) -> FitConfig:
-    """The fit settings of the command line; :class:`ConfigError` names the offending option."""
-    from ..pipeline import MAX_PLANES
-
-    if not 0 <= args.remove_planes <= MAX_PLANES:
-        raise ConfigError(f"--remove-planes must lie within 0 .. {MAX_PLANES}, got {args.remove_planes}")
-    if args.max_points < 1:
-        raise ConfigError(f"--max-points must be >= 1, got {args.max_points}")
-    if args.max_points > MAX_POINTS:
-        raise ConfigError(f"--max-points must be <= {MAX_POINTS}, got {args.max_points}")
-    if args.population < 2:
-        raise ConfigError(f"--population must be >= 2, got {args.population}")
-    if args.generations is not None and args.generations < 1:
-        raise ConfigError(f"--generations must be >= 1, got {args.generations}")
-    if args.islands < 1:
-        raise ConfigError(f"--islands must be >= 1, got {args.islands}")
-    if args.coarse_points < 0:
-        raise ConfigError(f"--coarse-points must be >= 0, got {args.coarse_points}")
-    if args.coarse_points and args.algorithm != "ga":
-        raise ConfigError(f"--coarse-points works with --algorithm ga only, not {args.algorithm!r}")
+    """The fit settings of the command line, validated with the input settings by their
+    classes; :class:`ConfigError` names the offending option."""
     if args.seed < 0 or args.seed >= 2**32:
         raise ConfigError(f"--seed must lie in 0 .. 2**32-1, got {args.seed}")
-    if not _finite(args, "sigma_factor", "--sigma-factor") > 0:
-        raise ConfigError(f"--sigma-factor must be > 0, got {args.sigma_factor}")
-    if _finite(args, "free_space_weight", "--free-space-weight") < 0:
-        raise ConfigError(f"--free-space-weight must be >= 0, got {args.free_space_weight}")
-    if _finite(args, "collision_weight", "--collision-weight") < 0:
-        raise ConfigError(f"--collision-weight must be >= 0, got {args.collision_weight}")
-    near, far = _finite(args, "near", "--near"), _finite(args, "far", "--far")
-    if not 0 <= near < far:
-        raise ConfigError(f"--near {near} / --far {far}: need 0 <= near < far (metres)")
-    if args.depth_scale is not None and not _finite(args, "depth_scale", "--depth-scale") > 0:
-        raise ConfigError(f"--depth-scale must be > 0 (metres per PNG unit), got {args.depth_scale}")
-    if args.cloud_scale is not None and not _finite(args, "cloud_scale", "--cloud-scale") > 0:
-        raise ConfigError(f"--cloud-scale must be > 0 (metres per unit of the cloud file), got {args.cloud_scale}")
-    if args.viewpoint is not None:
-        from ..io.cloud_file import parse_viewpoint
-
-        try:
-            parse_viewpoint(args.viewpoint)
-        except ValueError as e:
-            raise ConfigError(f"--viewpoint {args.viewpoint!r}: {e}") from None
     cfg = FitConfig(
         algorithm=args.algorithm,
         population=args.population,
@@ -137,8 +123,10 @@ def config_from_args(args) -> FitConfig:
                                   collision_weight=args.collision_weight),
     )
     if args.no_refine:
-        cfg = dataclasses.replace(cfg, memetic_every=0, final_refine_steps=0)
-    return cfg.validate()
+        cfg = dataclasses.replace(cfg, memetic_steps=0, final_refine_steps=0)
+    with as_flags():
+        _input_values(args).validate()
+        return cfg.validate()
 
 
 def _same_file(a: str | None, b: str | None) -> bool:
@@ -198,7 +186,6 @@ def input_options(args):
     """The input settings; :class:`ConfigError` for an option that applies to none of the inputs
     (an option for depth images when every input is a point cloud, or the other way round)."""
     from ..io.cloud_file import is_cloud_file
-    from ..pipeline import InputOptions
 
     clouds = [is_cloud_file(p) for p in args.depth]
     subject = args.depth[0] if len(clouds) == 1 else "every input"
@@ -212,11 +199,7 @@ def input_options(args):
         for flag, value in (("--cloud-scale", args.cloud_scale), ("--viewpoint", args.viewpoint)):
             if value is not None:
                 raise ConfigError(f"{flag} is for point clouds; {subject} is a depth image")
-    return InputOptions(
-        args.intrinsics or "kinect", 0.001 if args.depth_scale is None else args.depth_scale, args.near, args.far,
-        args.background, max_points=args.max_points, cloud_scale=1.0 if args.cloud_scale is None else args.cloud_scale,
-        viewpoint=args.viewpoint, remove_planes=args.remove_planes,
-    )
+    return _input_values(args)
 
 
 def _show_input_warning(message, category, filename, lineno, file=None, line=None):

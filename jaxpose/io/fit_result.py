@@ -1,4 +1,4 @@
-"""The ``result.json`` written by ``jaxpose fit`` (schema in the README).
+"""The ``result.json`` written by ``jaxpose fit`` (schema: docs/result_json.md).
 
 Every number except those under ``"timing"`` is bit-identical for the same
 inputs, seed and config on CPU.

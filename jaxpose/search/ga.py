@@ -37,7 +37,8 @@ from evosax.core.fitness_shaping import identity_fitness_shaping_fn
 from evosax.types import Fitness, Population, Solution
 from flax import struct
 
-from ..skeleton import Skeleton, genome_layout
+from ..genome import genome_layout
+from ..skeleton import Skeleton
 
 
 @struct.dataclass

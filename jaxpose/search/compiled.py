@@ -1,0 +1,194 @@
+"""The search as compiled programs, cached by what they depend on, and :class:`Fitter`.
+
+One fit is five kinds of program: the start, an epoch's generations, the
+refinement (shared by the memetic step and the final one), the memetic step's
+write-back, and the result.  They are compiled ahead of the first fit of a static
+config and cloud size, XLA compiling one in a worker thread while Python traces the
+next (docs/performance.md, "Compile time"), and reused by every later fit of the same
+signature, whatever its traced settings (:class:`~jaxpose.search.config.FitParams`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .._xla_flags import fast_compile_options
+from ..objective import Cloud
+from ..skeleton import Skeleton
+from .config import FitConfig, FitParams
+from .loop import EpochSteps, evaluation_counts, search_epoch, search_generations, search_init, search_result
+from .memetic import final_refine, memetic_apply, refine_top
+from .state import FitResult, SearchState
+
+# the programs that run once or a few times per fit compile with options that compile
+# faster (same numbers: see jaxpose/_xla_flags.py); the generations keep XLA's
+# defaults, which run them faster
+_ONCE = fast_compile_options()
+init_jit = jax.jit(search_init, static_argnames="config", compiler_options=_ONCE)
+generations_jit = jax.jit(search_generations, static_argnames=("config", "length"))
+refine_jit = jax.jit(refine_top, static_argnames=("config", "m"), compiler_options=_ONCE)
+memetic_apply_jit = jax.jit(memetic_apply, static_argnames="config", compiler_options=_ONCE)
+result_jit = jax.jit(search_result, static_argnames="config", compiler_options=_ONCE)
+JIT_STEPS = EpochSteps(generations_jit, refine_jit, memetic_apply_jit)
+
+
+class CompiledSearch(NamedTuple):
+    """The compiled programs of one static config and signature (:func:`compile_search`):
+    ``init``, ``generations`` and ``apply`` by epoch length, ``refine`` by count, ``result``."""
+
+    init: object
+    generations: dict
+    refine: dict
+    apply: dict
+    result: object
+
+    def steps(self) -> EpochSteps:
+        return EpochSteps(lambda sk, c, s, n: self.generations[n](sk, s),
+                          lambda sk, c, s, m, steps: self.refine[m](sk, s, steps),
+                          lambda sk, c, s, refined, h: self.apply[h.shape[0]](sk, s, refined, h))
+
+
+def compile_search(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig, params: FitParams,
+                   workers: int = 2) -> CompiledSearch:
+    """Trace and compile every program of a fit of the static ``config`` ahead of time,
+    XLA compiling one program in a worker thread while Python traces the next (XLA
+    releases the interpreter lock while it compiles).  The programs are exactly those
+    of ``init_jit``, ``generations_jit``, ...; only the order of the work changes."""
+    lengths = sorted(set(config.epoch_lengths))
+    pool = ThreadPoolExecutor(max_workers=workers)
+    try:
+        low = init_jit.lower(cloud, skel, key, config=config, params=params)
+        init, st = pool.submit(low.compile), low.out_info
+        gens, hist = {}, {}
+        for n in lengths:
+            low = generations_jit.lower(skel, config, st, length=n)
+            gens[n], hist[n] = pool.submit(low.compile), low.out_info[1]
+        steps = jax.ShapeDtypeStruct((), jnp.int32)
+        counts = ([config.memetic_count] if config.memetic_on else []) + (
+            [config.final_count] if config.final_refine_on else [])
+        refine, refined = {}, {}
+        for m in sorted(set(counts)):
+            low = refine_jit.lower(skel, config, st, m, steps)
+            refine[m], refined[m] = pool.submit(low.compile), low.out_info
+        apply = {}
+        if config.memetic_on:
+            for n in lengths:
+                low = memetic_apply_jit.lower(skel, config, st, refined[config.memetic_count], hist[n])
+                apply[n] = pool.submit(low.compile)
+        final = refined[config.final_count] if config.final_refine_on else None
+        history = jax.ShapeDtypeStruct((config.generations,), jnp.float32)
+        result = pool.submit(result_jit.lower(cloud, skel, config, st, history, final).compile)
+        done = lambda d: {k: f.result() for k, f in d.items()}  # noqa: E731
+        return CompiledSearch(init.result(), done(gens), done(refine), done(apply), result.result())
+    finally:  # an error or Ctrl-C does not wait for the compilations still queued
+        pool.shutdown(wait=False, cancel_futures=True)
+
+
+def signature(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig, params: FitParams):
+    """What a compiled fit depends on: the static config and the arguments' structure and types."""
+    leaves, tree = jax.tree_util.tree_flatten((cloud, skel, key, params))
+    return config, tree, tuple((x.shape, x.dtype) if hasattr(x, "dtype") else type(x) for x in leaves)
+
+
+class ProgramCache:
+    """Compiled searches by :func:`signature`, most recently used last, at most ``size``."""
+
+    def __init__(self, size: int = 8):
+        self.size = size
+        self.entries: OrderedDict = OrderedDict()
+
+    def __contains__(self, sig) -> bool:
+        return sig in self.entries
+
+    def get(self, cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig,
+            params: FitParams) -> CompiledSearch:
+        """The compiled search for this fit, from the cache or compiled now."""
+        sig = signature(cloud, skel, key, config, params)
+        if sig in self.entries:
+            self.entries.move_to_end(sig)
+        else:
+            self.entries[sig] = compile_search(cloud, skel, key, config, params)
+            while len(self.entries) > self.size:
+                self.entries.popitem(last=False)
+        return self.entries[sig]
+
+
+PROGRAMS = ProgramCache()
+
+
+def as_float32(cloud: Cloud) -> Cloud:
+    return Cloud(jnp.asarray(cloud.points, jnp.float32), jnp.asarray(cloud.weights, jnp.float32))
+
+
+class Fitter:
+    """:func:`~jaxpose.search.fit`'s steps as compiled programs, epoch by epoch.
+
+    The programs depend on the static part of ``config`` (:meth:`FitConfig.static`)
+    and the cloud's size; they are compiled at the first fit of such a signature and
+    reused after, whatever the rates and weights.  Step a fit by hand::
+
+        fitter = Fitter(skeleton, config)
+        st = fitter.init(cloud, key)
+        hists = []
+        for length in fitter.epoch_lengths:
+            st, hist = fitter.step(st, length)
+            hists.append(hist)
+        result = fitter.finish(st, jnp.concatenate(hists))
+
+    or call :meth:`run`, which does that with a progress callback.
+    """
+
+    def __init__(self, skeleton: Skeleton, config: FitConfig = FitConfig(), cache: ProgramCache = PROGRAMS):
+        self.skeleton = skeleton
+        self.config = config.validate().for_skeleton(skeleton)  # generations resolved
+        self.params = self.config.params()
+        self._static = self.config.static()
+        self._cache = cache
+        self._compiled: CompiledSearch | None = None
+
+    @property
+    def epoch_lengths(self) -> tuple[int, ...]:
+        return self.config.epoch_lengths
+
+    def init(self, cloud: Cloud, key: jax.Array) -> SearchState:
+        """The initial state for ``cloud`` (compiles the programs on the first use of its signature)."""
+        cloud = as_float32(cloud)
+        self._compiled = self._cache.get(cloud, self.skeleton, key, self._static, self.params)
+        return self._compiled.init(cloud, self.skeleton, key, params=self.params)
+
+    def step(self, st: SearchState, length: int) -> tuple[SearchState, jax.Array]:
+        """One epoch of ``length`` generations (one of :attr:`epoch_lengths`); returns the
+        state and the best cost after each generation ``(length,)``."""
+        return search_epoch(self.skeleton, self._static, st, length, self._compiled.steps())
+
+    def finish(self, st: SearchState, history) -> FitResult:
+        """The final refinement and the best individual over all islands."""
+        refine = lambda sk, c, s, m, steps: self._compiled.refine[m](sk, s, steps)  # noqa: E731
+        refined = final_refine(self.skeleton, self._static, st, refine)
+        return self._compiled.result(st.obs.cloud, self.skeleton, st, history, refined)
+
+    def run(self, cloud: Cloud, key: jax.Array, progress=None) -> FitResult:
+        """A whole fit; ``progress(generation, best_cost, evaluations)`` after every epoch."""
+        t0 = time.perf_counter()
+        st = self.init(cloud, key)
+        hists, gen = [], 0
+        for length in self.epoch_lengths:
+            st, h = self.step(st, length)
+            hists.append(h)
+            gen += length
+            if progress is not None:
+                progress(gen, float(h[-1]), int(sum(evaluation_counts(st))))
+        res = jax.block_until_ready(self.finish(st, jnp.concatenate(hists)))
+        return res._replace(wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32))
+
+
+def fit_cloud(cloud: Cloud, skeleton: Skeleton, seed: int = 0, config: FitConfig = FitConfig(),
+              progress=None) -> FitResult:
+    """Convenience: :meth:`Fitter.run` with an integer seed."""
+    return Fitter(skeleton, config).run(cloud, jax.random.key(seed), progress)

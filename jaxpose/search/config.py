@@ -1,0 +1,225 @@
+"""The search's settings: :class:`FitConfig` (static: shapes and schedules, one
+compiled program each) and :class:`FitParams` (traced: the rates and weights, so
+that one compiled program serves every value; evosax's constructor/``Params`` split).
+
+Why each default is what it is: docs/search.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import jax.numpy as jnp
+from flax import struct
+
+from ..errors import ConfigError, require_finite, require_integer
+from ..genome import genome_layout
+from ..objective import ObjectiveConfig
+from ..skeleton import Skeleton
+from .baselines import evosax_strategy
+
+GENERATIONS_PER_GENE = 4
+GENERATIONS_RANGE = (100, 300)
+
+
+def auto_generations(skel: Skeleton, epoch: int = 25) -> int:
+    """The default number of generations for ``skel``: ``GENERATIONS_PER_GENE`` per
+    searched gene, clipped to ``GENERATIONS_RANGE``, rounded to whole epochs (a
+    shorter last epoch is one more program to compile)."""
+    lo, hi = GENERATIONS_RANGE
+    g = min(hi, max(lo, GENERATIONS_PER_GENE * genome_layout(skel).size))
+    return int(epoch * max(1, round(g / epoch)))
+
+
+# FitConfig's fields that are traced (FitParams), and ObjectiveConfig's.
+TRACED = ("crossover_rate", "mutation_rate", "branch_mutation_rate", "branch_reset_rate", "learning_rate",
+          "init_root_std", "init_pca_std")
+TRACED_OBJECTIVE = ("sigma_factor", "free_space_weight", "collision_weight")
+
+
+@struct.dataclass
+class FitParams:
+    """The settings a compiled fit takes as traced numbers (``float32`` scalars).
+
+    Made from a config by :meth:`FitConfig.params`; see :class:`FitConfig` for
+    their meaning.  A weight of exactly 0 leaves its term out of the program, so it
+    is a static choice: only positive weights are traced."""
+
+    crossover_rate: jnp.ndarray
+    mutation_rate: jnp.ndarray
+    branch_mutation_rate: jnp.ndarray
+    branch_reset_rate: jnp.ndarray
+    learning_rate: jnp.ndarray
+    init_root_std: jnp.ndarray
+    init_pca_std: jnp.ndarray
+    sigma_factor: jnp.ndarray
+    free_space_weight: jnp.ndarray
+    collision_weight: jnp.ndarray
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """Search settings (hashable).
+
+    Attributes:
+        algorithm: ``"ga"`` (branch-swap GA), ``"hc"`` (hill climbing) or the name
+            of any evosax strategy (e.g. ``"cma_es"``).
+        population: individuals evaluated per generation (per island).
+        generations: generations, the first of which evaluates the initial
+            population; ``None``: :func:`auto_generations` (:meth:`for_skeleton`).
+        epoch: generations per epoch, the unit the search is compiled and reported
+            in; the GA's memetic step ends every epoch.
+        std_init, std_final: mutation / sampling step (normalised genome units),
+            decayed exponentially over the generations.
+        crossover_rate: probability that a child takes a subtree from a second parent.
+        mutation_rate: per-gene mutation probability.
+        branch_mutation_rate: probability that a child mutates one whole subtree instead.
+        branch_reset_rate: probability that a child then draws one random subtree's
+            genes anew (a jump out of a local optimum at any step size).
+        elite_ratio: fraction of the population that may become parents.
+        memetic_top, memetic_steps: at the end of every epoch (GA only) the
+            ``memetic_top`` best individuals take ``memetic_steps`` Adam steps
+            (0: no memetic step).
+        final_refine_top, final_refine_steps: Adam steps at the end (0: none) on the
+            best individuals of the GA, or on the best point of other algorithms.
+        learning_rate: Adam learning rate (genome units).
+        init_root_std: spread of the initial root translation genes around the cloud's centre.
+        init_pca_fraction: fraction of the initial population whose root aligns the
+            model's principal axes with the cloud's, spun about the most reliable one.
+        init_pca_std: noise on those individuals' root genes.
+        scale_window: the scale is searched within ``s0 / w .. s0 * w`` of the cloud's
+            spread over the model's (0: the skeleton's range alone).
+        islands: independent sub-populations searched side by side (vmapped).
+        halve_islands_at: fractions of the generations after which the worse half of
+            the islands takes over the better half's populations (successive halving).
+        staged: trunk before limbs: links unlock level by level down the tree during
+            the first ``staged`` fraction of the generations (0: all at once).
+        coarse_points, coarse_until: coarse-to-fine (GA only; 0: off): score on this
+            many points only until ``coarse_until`` of the generations.
+        tie_lengths: alike links (one orbit of the skeleton's symmetries) share one length.
+        objective: the cost's settings.
+
+    The rates, ``learning_rate``, the initial spreads and the objective's
+    ``sigma_factor`` and positive weights are traced (:class:`FitParams`): changing
+    them reuses the compiled search.  See docs/search.md.
+    """
+
+    algorithm: str = "ga"
+    population: int = 64
+    generations: int | None = None
+    epoch: int = 25
+    std_init: float = 0.15
+    std_final: float = 0.01
+    crossover_rate: float = 0.5
+    mutation_rate: float = 0.15
+    branch_mutation_rate: float = 0.3
+    branch_reset_rate: float = 0.1
+    elite_ratio: float = 0.25
+    memetic_top: int = 4
+    memetic_steps: int = 10
+    final_refine_top: int = 4
+    final_refine_steps: int = 100
+    learning_rate: float = 0.01
+    init_root_std: float = 0.1
+    init_pca_fraction: float = 0.5
+    init_pca_std: float = 0.02
+    scale_window: float = 1.5
+    islands: int = 32
+    halve_islands_at: tuple[float, ...] = (1 / 3, 1 / 2, 2 / 3, 5 / 6)
+    staged: float = 0.5
+    coarse_points: int = 0
+    coarse_until: float = 0.5
+    tie_lengths: bool = False
+    objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
+
+    def __post_init__(self):  # a list (from JSON, say) would not be hashable
+        object.__setattr__(self, "halve_islands_at", tuple(self.halve_islands_at))
+
+    def validate(self) -> "FitConfig":
+        """Raise :class:`ConfigError` naming the first impossible setting; return ``self``."""
+        def within(name, lo, hi, lo_open=False, hi_open=False):
+            v = require_finite(name, getattr(self, name))
+            if not ((lo < v if lo_open else lo <= v) and (v < hi if hi_open else v <= hi)):
+                raise ConfigError(f"{name} must lie in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+                                  f", got {v!r}")
+
+        require_integer("population", self.population, 2)
+        if self.generations is not None:
+            require_integer("generations", self.generations, 1)
+        require_integer("islands", self.islands, 1)
+        require_integer("epoch", self.epoch, 1)
+        if self.algorithm not in ("ga", "hc"):
+            evosax_strategy(self.algorithm)
+        for name in ("crossover_rate", "mutation_rate", "branch_mutation_rate", "branch_reset_rate",
+                     "init_pca_fraction", "staged"):
+            within(name, 0.0, 1.0)
+        within("elite_ratio", 0.0, 1.0, lo_open=True)
+        within("coarse_until", 0.0, 1.0, lo_open=True, hi_open=True)
+        for name in ("std_init", "std_final", "learning_rate"):
+            if not require_finite(name, getattr(self, name)) > 0:
+                raise ConfigError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("init_root_std", "init_pca_std"):
+            if not require_finite(name, getattr(self, name)) >= 0:
+                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if self.scale_window != 0 and not require_finite("scale_window", self.scale_window) > 1.0:
+            raise ConfigError(f"scale_window must be > 1 (or 0 for the skeleton's range), got {self.scale_window}")
+        if not all(isinstance(f, (int, float)) and 0.0 < f < 1.0 for f in self.halve_islands_at):
+            raise ConfigError(f"halve_islands_at must hold fractions in (0, 1), got {self.halve_islands_at!r}")
+        require_integer("coarse_points", self.coarse_points, 0)
+        if self.coarse_points and self.algorithm != "ga":
+            raise ConfigError(f"coarse_points works with the GA (algorithm 'ga') only, not {self.algorithm!r}")
+        if not isinstance(self.tie_lengths, bool):
+            raise ConfigError(f"tie_lengths must be true or false, got {self.tie_lengths!r}")
+        for name in ("memetic_top", "memetic_steps", "final_refine_top", "final_refine_steps"):
+            require_integer(name, getattr(self, name), 0)
+        self.objective.validate()
+        return self
+
+    def for_skeleton(self, skel: Skeleton) -> "FitConfig":
+        """This config with ``generations`` chosen for ``skel`` when it is ``None``
+        (:func:`auto_generations`); the search itself always runs a resolved config."""
+        if self.generations is not None:
+            return self
+        return dataclasses.replace(self, generations=auto_generations(skel, self.epoch))
+
+    @property
+    def memetic_on(self) -> bool:
+        return self.algorithm == "ga" and self.memetic_top > 0 and self.memetic_steps > 0
+
+    @property
+    def final_refine_on(self) -> bool:
+        return self.final_refine_steps > 0 and self.final_refine_top > 0
+
+    @property
+    def memetic_count(self) -> int:
+        """Individuals each island refines in a memetic step."""
+        return min(self.memetic_top, self.population)
+
+    @property
+    def final_count(self) -> int:
+        """Individuals each island refines at the end."""
+        return min(self.final_refine_top, self.population) if self.algorithm == "ga" else 1
+
+    @property
+    def epoch_lengths(self) -> tuple[int, ...]:
+        """The generations of every epoch of a resolved config (the last may be shorter)."""
+        E, G = self.epoch, self.generations
+        return (E,) * (G // E) + ((G % E,) if G % E else ())
+
+    def params(self) -> FitParams:
+        """The traced settings of this config."""
+        obj = self.objective
+        values = {n: getattr(self, n) for n in TRACED} | {n: getattr(obj, n) for n in TRACED_OBJECTIVE}
+        return FitParams(**{n: jnp.asarray(v, jnp.float32) for n, v in values.items()})
+
+    def static(self) -> "FitConfig":
+        """This config without its traced settings: what a compiled search depends on.
+        Traced fields read ``None``; a zero weight stays 0 (its term is left out)."""
+        obj = self.objective
+        weights = {n: (None if getattr(obj, n) else 0.0) for n in ("free_space_weight", "collision_weight")}
+        return dataclasses.replace(self, **dict.fromkeys(TRACED), objective=dataclasses.replace(
+            obj, sigma_factor=None, **weights))
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
