@@ -62,12 +62,11 @@ def disable_ynn_fusions() -> bool:
 
 
 # XLA:CPU's newer MLIR fusion emitters generate faster code for some loops but take
-# longer to compile.  For the programs that run once or a few times per fit (the
-# initial population, the gradient refinement, the write-back and the result), the
-# older emitters compile about a third faster at the same speed and with the same
-# numbers up to float32 round-off (humanoid, 2-core VM: 11.0 -> 7.6 s of XLA compile
-# for those four programs, refinement run time unchanged); the generation loop, most
-# of a fit's run time, keeps the default (15% slower to run with the older ones).
+# longer to compile.  The programs that run once or a few times per fit (the initial
+# population, the gradient refinement, the write-back and the result) compile faster
+# with the older emitters at the same speed and numbers up to float32 round-off; the
+# generation loop, most of a fit's run time, keeps the default, which runs it faster
+# (docs/performance.md, "Compile time").
 # ``xla_cpu_use_fusion_emitters`` is an XLA debug option: used only on the jaxlib
 # versions it was checked on, since an unknown option is an error at compile time.
 _FAST_COMPILE = {"xla_cpu_use_fusion_emitters": False}

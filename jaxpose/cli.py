@@ -46,11 +46,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def enable_compilation_cache() -> str | None:
-    """Keep XLA's compiled programs on disk between runs (the first fit of a
-    configuration compiles for 7-15 s; later runs load it in about a second).
-    Every program is kept, also those that compile in under a second: a fit has
-    about 18 of them (spider, `jaxpose fit` with the programs on disk: 7.6-7.8 s
-    a run against 8.1-8.3 s when only the three slowest are kept).
+    """Keep XLA's compiled programs on disk between runs: the first fit of a
+    configuration compiles for seconds, later runs load it.  Every program is kept,
+    also the quick ones (a fit has many; docs/performance.md, "Cold fits, the compile
+    cache and batches").
 
     ``JAXPOSE_CACHE_DIR`` names the folder (default ``$XDG_CACHE_HOME/jaxpose/xla``
     or ``~/.cache/jaxpose/xla``); ``JAXPOSE_CACHE_DIR=0`` turns the cache off.  A
