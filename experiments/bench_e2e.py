@@ -63,8 +63,8 @@ def _links_of(skel):
 
 
 def run_e2e(name: str, args) -> dict:
-    from jaxpose import render as R
     from jaxpose.camera import depth_to_cloud
+    from jaxpose.datasets import random_pose, render_orbit
     from jaxpose.metrics import evaluate
     from jaxpose.search import FitConfig
 
@@ -73,8 +73,8 @@ def run_e2e(name: str, args) -> dict:
     t = time.perf_counter()
     views, clouds = [], []
     for i in range(args.e2e_images):
-        pose = R.random_pose(skel, np.random.default_rng([args.seed, i]))
-        view = R.render_orbit(skel, pose, elevation_deg=20.0, azimuth_deg=40.0 * i, seed=args.seed + i)
+        pose = random_pose(skel, np.random.default_rng([args.seed, i]))
+        view = render_orbit(skel, pose, elevation_deg=20.0, azimuth_deg=40.0 * i, seed=args.seed + i)
         views.append(view)
         clouds.append(depth_to_cloud(view.depth, view.intrinsics, max_points=args.e2e_points, seed=i))
     render_s = time.perf_counter() - t

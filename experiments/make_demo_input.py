@@ -15,7 +15,7 @@ sys.path.insert(0, os.path.dirname(HERE))
 
 from jaxpose.io.skeleton_file import load_skeleton, resolve_skeleton_path  # noqa: E402
 from jaxpose.io.truth import write_view  # noqa: E402
-from jaxpose.render import random_pose, render_orbit  # noqa: E402
+from jaxpose.datasets import random_pose, render_orbit  # noqa: E402
 
 OUT = os.path.join(os.path.dirname(HERE), "jaxpose", "data")
 

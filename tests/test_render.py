@@ -1,26 +1,20 @@
-"""Renderer, camera placement, sensor model, random poses, truth files and `jaxpose render`."""
+"""The renderer (against sphere tracing in NumPy), camera placement and the sensor model (``jaxpose.render``)."""
 
 from __future__ import annotations
-
-import argparse
-import json
 
 import jax
 import numpy as np
 import pytest
 
 from jaxpose import render as R
-from jaxpose.camera import Intrinsics, foreground_mask
-from jaxpose.errors import JaxposeError
-from jaxpose.io.depth_file import load_depth
-from jaxpose.io.skeleton_file import load_skeleton, shipped_skeletons
-from jaxpose.io.truth import read_links, read_pose, write_view
-from jaxpose.kinematics import forward_kinematics
+from jaxpose.camera import Intrinsics
+from jaxpose.datasets import random_pose
 from jaxpose.geometry import matrix_to_rpy, rpy_matrix
+from jaxpose.io.skeleton_file import load_skeleton, shipped_skeletons
+from jaxpose.kinematics import forward_kinematics
 from jaxpose.skeleton import rest_pose
 
 SMALL = Intrinsics(60.0, 60.0, 19.5, 14.5, 40, 30)
-TINY = Intrinsics(105.0, 105.0, 79.5, 59.5, 160, 120)  # Kinect field of view at 160x120
 
 
 # --------------------------------------------------------------------------- independent NumPy oracle
@@ -122,7 +116,7 @@ def test_orbit_camera_looks_at_target(elevation, azimuth):
 @pytest.mark.parametrize("name", shipped_skeletons())
 def test_pose_to_camera_folds_the_transform_into_the_root(name):
     skel = load_skeleton(name)
-    pose = R.random_pose(skel, 3, max_tries=1)
+    pose = random_pose(skel, 3, max_tries=1)
     T = R.orbit_extrinsics((0.1, 0.2, 0.3), 35, 120, 2.5)
     world = forward_kinematics(skel, pose)
     cam = forward_kinematics(skel, R.pose_to_camera(pose, T))
@@ -186,118 +180,3 @@ def test_missing_pixels_at_edges_and_holes():
     out = R.apply_sensor(jax.random.PRNGKey(0), _flat(), holes_only)
     missing = (out == 0).sum()
     assert 5 * np.pi * 2.5**2 / 2 < missing <= 5 * np.pi * 4.5**2
-
-
-# --------------------------------------------------------------------------- poses, scenes, views
-
-
-@pytest.mark.parametrize("name", shipped_skeletons())
-def test_random_pose_within_limits_and_seeded(name):
-    skel = load_skeleton(name)
-    a = R.random_pose(skel, 7, length_spread=0.2, max_tries=3)
-    b = R.random_pose(skel, 7, length_spread=0.2, max_tries=3)
-    for x, y in zip(a, b):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    q = np.asarray(a.angles)
-    assert np.all(q >= np.asarray(skel.angle_lo) - 1e-6) and np.all(q <= np.asarray(skel.angle_hi) + 1e-6)
-    ln = np.asarray(a.lengths)
-    assert np.all(ln >= np.asarray(skel.length_lo) - 1e-6) and np.all(ln <= np.asarray(skel.length_hi) + 1e-6)
-
-
-def test_floor_and_clutter_are_removed_by_background_subtraction():
-    skel = load_skeleton("spider")
-    pose = R.random_pose(skel, 0, max_tries=3)
-    # edges off: at 160x120 the legs are only a few pixels wide, all of them near an edge
-    view = R.render_orbit(skel, pose, 30, 20, 1.2, TINY, floor=True, clutter=3, seed=0,
-                          sensor=R.SensorModel(edges=False))
-    assert view.background is not None and (view.background > 0).mean() > 0.3
-    clean_subject = R.render_scene(R.capsule_scene(view.start, view.end, view.radius), TINY)
-    fg = foreground_mask(view.depth, background=view.background)
-    subject = clean_subject > 0
-    assert (fg & subject).sum() > 0.5 * subject.sum()
-    assert (fg & ~subject).sum() < 0.1 * fg.sum()
-    # the floor touches the subject's lowest point: no link is below it
-    _, _, floor_z = R.subject_frame(skel, pose)
-    w = forward_kinematics(skel, pose)
-    assert np.all(np.minimum(w.start, w.end)[:, 2] - w.radius >= floor_z - 1e-5)
-
-
-def test_truth_round_trip(tmp_path):
-    skel = load_skeleton("humanoid")
-    pose = R.random_pose(skel, 1, max_tries=2)
-    view = R.render_orbit(skel, pose, 10, 0, 3.0, TINY, floor=True, seed=1)
-    truth = write_view(str(tmp_path / "d.png"), str(tmp_path / "t.json"), skel, view, str(tmp_path / "b.png"),
-                       "skeletons/humanoid.toml", R.SensorModel(), {"x": 1})
-    assert truth["image"] == "d.png" and truth["background"] == "b.png"
-    d = load_depth(str(tmp_path / "d.png"))
-    valid = view.depth > 0
-    np.testing.assert_allclose(d[valid], view.depth[valid], atol=6e-4)  # millimetres
-    assert np.all(np.isnan(d[~valid]))
-    links = read_links(str(tmp_path / "t.json"))
-    assert links.names == skel.link_names and links.skeleton_name == "humanoid"
-    np.testing.assert_allclose(links.start, view.start, atol=1e-6)
-    np.testing.assert_allclose(links.end, view.end, atol=1e-6)
-    p = read_pose(str(tmp_path / "t.json"), skel)
-    fk = forward_kinematics(skel, p)
-    np.testing.assert_allclose(np.asarray(fk.end), view.end, atol=1e-5)
-    pw = read_pose(str(tmp_path / "t.json"), skel, world=True)
-    np.testing.assert_allclose(np.asarray(pw.angles), np.asarray(pose.angles), atol=1e-6)
-    data = json.loads((tmp_path / "t.json").read_text())
-    assert data["camera"]["intrinsics"]["width"] == 160 and len(data["camera"]["T_cam_world"]) == 4
-
-
-def test_spider_dataset_is_deterministic_and_seeded():
-    skel = load_skeleton("spider")
-    kw = dict(k=TINY, num_poses=1, inclinations=(0.0, 60.0), clutter=1)
-    a = R.spider_dataset(skel, seed=0, **kw)
-    b = R.spider_dataset(skel, seed=0, **kw)
-    c = R.spider_dataset(skel, seed=1, **kw)
-    assert [s.name for s in a] == ["pose0_incl00", "pose0_incl60"]
-    np.testing.assert_array_equal(a[1].view.depth, b[1].view.depth)
-    assert not np.allclose(a[1].view.end, c[1].view.end)
-    # one pose, two inclinations: the same pose in the world frame
-    np.testing.assert_array_equal(np.asarray(a[0].view.pose_world.angles), np.asarray(a[1].view.pose_world.angles))
-
-
-def test_humanoid_dataset_subjects_differ_symmetrically():
-    skel = load_skeleton("humanoid")
-    ds = R.humanoid_dataset(skel, seed=0, k=TINY, num_subjects=2, poses_per_subject=1, clutter=0, floor=False,
-                            sensor=None)
-    l0, l1 = (np.asarray(s.view.pose.lengths) for s in ds)
-    assert not np.allclose(l0, l1)
-    i, j = skel.index("l_thigh"), skel.index("r_thigh")
-    assert l0[i] == l0[j]
-    assert float(ds[0].view.pose.scale) != float(ds[1].view.pose.scale)
-
-
-# --------------------------------------------------------------------------- command
-
-
-def _cli(argv):
-    from jaxpose.commands import eval as eval_cmd
-    from jaxpose.commands import render as render_cmd
-
-    parser = argparse.ArgumentParser(prog="jaxpose")
-    sub = parser.add_subparsers()
-    render_cmd.register(sub)
-    eval_cmd.register(sub)
-    args = parser.parse_args(argv)
-    return args.func(args)
-
-
-def test_render_command(tmp_path, capsys):
-    out, truth, bg = tmp_path / "d.png", tmp_path / "t.json", tmp_path / "b.png"
-    rc = _cli(["render", "--skeleton", "arm7", "--seed", "2", "--size", "160x120", "--floor", "--clutter", "2",
-               "--out", str(out), "--truth", str(truth), "--background-out", str(bg)])
-    assert rc == 0 and out.exists() and bg.exists()
-    data = json.loads(truth.read_text())
-    assert data["skeleton"] == {"name": "arm7", "file": "arm7"} and len(data["links"]) == 7
-    assert data["camera"]["intrinsics"]["width"] == 160
-    # re-render the stored pose without noise from another side
-    rc = _cli(["render", "--skeleton", "arm7", "--pose", str(truth), "--size", "160x120", "--no-noise",
-               "--azimuth", "90", "--out", str(tmp_path / "d2.png")])
-    assert rc == 0
-    with pytest.raises(JaxposeError, match="background"):
-        _cli(["render", "--skeleton", "arm7", "--out", str(tmp_path / "x.png"), "--background-out", str(bg)])
-    with pytest.raises(JaxposeError):
-        _cli(["render", "--skeleton", "arm7", "--size", "1x", "--out", str(tmp_path / "x.png")])

@@ -61,11 +61,12 @@ def _size(spec: str):
 def run(args) -> int:
     import numpy as np
 
-    from .. import render as R
+    from ..datasets import default_distance, random_pose, render_orbit, subject_frame
     from ..errors import ConfigError
     from ..io.depth_file import parse_intrinsics
     from ..io.skeleton_file import load_skeleton
     from ..io.truth import read_pose, write_view
+    from ..render import SensorModel
     from ..skeleton import rest_pose
 
     from .progress import check_output_path
@@ -103,15 +104,15 @@ def run(args) -> int:
         check_output_path(p, flag)
 
     if args.pose == "random":
-        pose = R.random_pose(skel, args.seed)
+        pose = random_pose(skel, args.seed)
     elif args.pose == "rest":
         pose = rest_pose(skel)
     else:
         pose = read_pose(args.pose, skel, world=True)
-    sensor = R.SensorModel() if args.noise else None
-    distance = args.distance or R.default_distance(R.subject_frame(skel, pose)[1], k)
-    view = R.render_orbit(skel, pose, args.elevation, args.azimuth, distance, k, floor=args.floor,
-                          clutter=args.clutter, sensor=sensor, seed=args.seed)
+    sensor = SensorModel() if args.noise else None
+    distance = args.distance or default_distance(subject_frame(skel, pose)[1], k)
+    view = render_orbit(skel, pose, args.elevation, args.azimuth, distance, k, floor=args.floor,
+                        clutter=args.clutter, sensor=sensor, seed=args.seed)
     seen = int((view.depth > 0).sum())
     if sensor is not None:
         clean = int((view.clean > 0).sum())

@@ -66,7 +66,7 @@ def pose_dict(skel: Skeleton, pose: Pose) -> dict:
 
 def truth_dict(skel: Skeleton, view, skeleton_file: str | None = None, image: str | None = None,
                background: str | None = None, sensor=None, meta: dict | None = None) -> dict:
-    """The truth record of a :class:`~jaxpose.render.View` (see the module docstring)."""
+    """The truth record of a :class:`~jaxpose.datasets.View` (see the module docstring)."""
     k = view.intrinsics
     links = []
     for i, name in enumerate(skel.link_names):
