@@ -99,16 +99,12 @@ def foreground_mask(
 def depth_to_cloud(
     depth: np.ndarray,
     intrinsics: Intrinsics = KINECT_V1,
-    near: float = 0.3,
-    far: float = 8.0,
+    near: float = 0.3, far: float = 8.0,
     background: np.ndarray | None = None,
-    max_points: int = 1024,
-    seed: int = 0,
-    min_points: int = 50,
+    max_points: int = 1024, seed: int = 0, min_points: int = 50,
     background_tolerance: float = 0.05,
     source: str = "depth image",
-    remove_planes: int = 0,
-    plane_tolerance: float = 0.02,
+    remove_planes: int = 0, plane_tolerance: float = 0.02,
 ) -> Cloud:
     """Depth image (metres) -> fixed-size :class:`Cloud` of ``max_points`` points.
 
@@ -146,13 +142,10 @@ def depth_to_cloud(
             "check the near/far range and the depth scale)"
         )
     mask = foreground_mask(depth, near, far, background, background_tolerance).reshape(-1)
-    idx = _drop_planes(pts, np.flatnonzero(mask), remove_planes, plane_tolerance, seed, source)
-    if len(idx) < min_points:
-        raise DepthError(
-            f"{source}: only {len(idx)} points left after background removal "
-            f"(near={near} m, far={far} m{', background subtracted' if background is not None else ''}"
-            f"{_planes_note(remove_planes)}); at least {min_points} are needed"
-        )
+    subtracted = ", background subtracted" if background is not None else ""
+    idx = _off_planes_enough(pts, np.flatnonzero(mask), min_points, remove_planes, plane_tolerance, seed, source,
+                             f"left after background removal (near={near} m, far={far} m{subtracted}"
+                             f"{_planes_note(remove_planes)})")
     return _subsample(pts, idx, max_points, seed)
 
 
@@ -160,11 +153,8 @@ def depth_to_cloud(
 def off_planes(
     points: np.ndarray,
     count: int = 1,
-    tolerance: float = 0.02,
-    noise: float = 0.0045,
-    min_fraction: float = 0.2,
-    max_spread: float = 0.35,
-    min_cover: float = 0.5,
+    tolerance: float = 0.02, noise: float = 0.0045,
+    min_fraction: float = 0.2, max_spread: float = 0.35, min_cover: float = 0.5,
     seed: int = 0,
 ) -> np.ndarray:
     """Which points lie off the ``count`` largest planes (a floor, a wall): a mask.
@@ -234,12 +224,20 @@ def _check_sampling(near: float, far: float, max_points: int, source: str) -> No
         raise DepthError(f"{source}: max_points must be >= 1, got {max_points}")
 
 
-def _drop_planes(pts, idx, count: int, tolerance: float, seed: int, source: str) -> np.ndarray:
+def _off_planes_enough(pts, idx, min_points: int, count: int, tolerance: float, seed: int, source: str,
+                       kept: str) -> np.ndarray:
+    """The steps both cloud builders share once they know their candidate points
+    ``pts[idx]``: drop the ``count`` largest planes (:func:`off_planes`), then require
+    ``min_points`` left (``kept`` says how they were kept, for the error)."""
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
         raise DepthError(f"{source}: remove_planes must be an integer >= 0, got {count!r}")
     if not (np.isfinite(tolerance) and tolerance >= 0):
         raise DepthError(f"{source}: plane_tolerance must be a finite number >= 0 (metres), got {tolerance!r}")
-    return idx[off_planes(pts[idx], count, tolerance, seed=seed)] if count else idx
+    if count:
+        idx = idx[off_planes(pts[idx], count, tolerance, seed=seed)]
+    if len(idx) < min_points:
+        raise DepthError(f"{source}: only {len(idx)} points {kept}; at least {min_points} are needed")
+    return idx
 
 
 def _planes_note(count: int) -> str:
@@ -261,14 +259,10 @@ def _subsample(pts: np.ndarray, idx: np.ndarray, max_points: int, seed: int) -> 
 
 def sensor_points_to_cloud(
     points: np.ndarray,
-    near: float = 0.3,
-    far: float = 8.0,
-    max_points: int = 1024,
-    seed: int = 0,
-    min_points: int = 50,
+    near: float = 0.3, far: float = 8.0,
+    max_points: int = 1024, seed: int = 0, min_points: int = 50,
     source: str = "point cloud",
-    remove_planes: int = 0,
-    plane_tolerance: float = 0.02,
+    remove_planes: int = 0, plane_tolerance: float = 0.02,
     return_indices: bool = False,
 ):
     """Points in the sensor's frame (``(M, 3)``, metres; at the origin, looking
@@ -303,12 +297,8 @@ def sensor_points_to_cloud(
             f"(the points' z spans {float(zf.min()):.4g} .. {float(zf.max()):.4g}; check the near/far range, "
             f"{hint})"
         )
-    idx = _drop_planes(pts, np.flatnonzero(keep), remove_planes, plane_tolerance, seed, source)
-    if len(idx) < min_points:
-        raise DepthError(
-            f"{source}: only {len(idx)} points lie within near={near} m .. far={far} m"
-            f"{_planes_note(remove_planes)}; at least {min_points} are needed"
-        )
+    idx = _off_planes_enough(pts, np.flatnonzero(keep), min_points, remove_planes, plane_tolerance, seed, source,
+                             f"lie within near={near} m .. far={far} m{_planes_note(remove_planes)}")
     if float(np.max(np.ptp(pts[idx], axis=0))) < 1e-3:
         raise DepthError(f"{source}: the points all lie within 1 mm of each other; not a cloud to fit")
     cloud = _subsample(pts, idx, max_points, seed)

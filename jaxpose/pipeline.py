@@ -25,30 +25,38 @@ MAX_POINTS = 1_000_000  # points sampled from one input at most
 
 @dataclass(frozen=True)
 class InputOptions:
-    """How a depth image or point-cloud file becomes a cloud.
-
-    Depth images: ``intrinsics``, ``depth_scale`` (metres per stored integer),
-    ``background``.  Point clouds: ``cloud_scale`` (metres per unit of the file's
-    coordinates) and ``viewpoint`` (``tx,ty,tz,qw,qx,qy,qz``: the sensor's pose in
-    the cloud's frame, the translation in the file's unit like a PCD ``VIEWPOINT``;
-    ``None``: the file's own, identity unless a PCD header gives one).  Both:
-    ``near``/``far`` (depth along the sensor's z), ``remove_planes`` (drop the points
-    of that many largest planes, a floor or a wall, within ``plane_tolerance`` metres
-    plus the depth noise: :func:`~jaxpose.camera.off_planes`), ``max_points``,
-    ``sample_seed``."""
+    """How a depth image or point-cloud file becomes a cloud, each setting documented
+    below its field: for depth images, for point clouds, or for both.  See docs/input.md."""
 
     intrinsics: str | None = "kinect"
+    """Depth images: the camera (``kinect``, ``fx,fy,cx,cy`` or a JSON file:
+    :func:`~jaxpose.io.depth_file.parse_intrinsics`)."""
     depth_scale: float = 0.001
+    """Depth images: metres per stored integer."""
     near: float = 0.3
+    """Both: the nearest depth kept (metres along the sensor's z)."""
     far: float = 8.0
+    """Both: the farthest depth kept (metres along the sensor's z)."""
     background: str | None = None
+    """Depth images: an image of the scene without the subject, subtracted."""
     background_tolerance: float = 0.05
+    """Depth images: how far in front of the background (metres, plus the depth
+    noise) a pixel must lie to be kept."""
     max_points: int = 1024
+    """Both: the cloud's size (a seeded random subset, or padding)."""
     sample_seed: int = 0
+    """Both: the seed of that subset."""
     cloud_scale: float = 1.0
+    """Point clouds: metres per unit of the file's coordinates."""
     viewpoint: tuple | str | None = None
+    """Point clouds: ``tx,ty,tz,qw,qx,qy,qz``, the sensor's pose in the cloud's frame,
+    the translation in the file's unit like a PCD ``VIEWPOINT``; ``None``: the
+    file's own, identity unless a PCD header gives one."""
     remove_planes: int = 0
+    """Both: drop the points of that many largest planes, a floor or a wall
+    (:func:`~jaxpose.camera.off_planes`)."""
     plane_tolerance: float = 0.02
+    """Both: how far from a plane (metres, plus the depth noise) a point lies on it."""
 
     def validate(self) -> "InputOptions":
         """Raise :class:`ConfigError` for an impossible setting; return ``self``."""

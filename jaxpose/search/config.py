@@ -60,45 +60,7 @@ class FitParams:
 
 @dataclass(frozen=True)
 class FitConfig:
-    """Search settings (hashable).
-
-    Attributes:
-        algorithm: ``"ga"`` (branch-swap GA), ``"hc"`` (hill climbing) or the name
-            of any evosax strategy (e.g. ``"cma_es"``).
-        population: individuals evaluated per generation (per island).
-        generations: generations, the first of which evaluates the initial
-            population; ``None``: :func:`auto_generations` (:meth:`for_skeleton`).
-        epoch: generations per epoch, the unit the search is compiled and reported
-            in; the GA's memetic step ends every epoch.
-        std_init, std_final: mutation / sampling step (normalised genome units),
-            decayed exponentially over the generations.
-        crossover_rate: probability that a child takes a subtree from a second parent.
-        mutation_rate: per-gene mutation probability.
-        branch_mutation_rate: probability that a child mutates one whole subtree instead.
-        branch_reset_rate: probability that a child then draws one random subtree's
-            genes anew (a jump out of a local optimum at any step size).
-        elite_ratio: fraction of the population that may become parents.
-        memetic_top, memetic_steps: at the end of every epoch (GA only) the
-            ``memetic_top`` best individuals take ``memetic_steps`` Adam steps
-            (0: no memetic step).
-        final_refine_top, final_refine_steps: Adam steps at the end (0: none) on the
-            best individuals of the GA, or on the best point of other algorithms.
-        learning_rate: Adam learning rate (genome units).
-        init_root_std: spread of the initial root translation genes around the cloud's centre.
-        init_pca_fraction: fraction of the initial population whose root aligns the
-            model's principal axes with the cloud's, spun about the most reliable one.
-        init_pca_std: noise on those individuals' root genes.
-        scale_window: the scale is searched within ``s0 / w .. s0 * w`` of the cloud's
-            spread over the model's (0: the skeleton's range alone).
-        islands: independent sub-populations searched side by side (vmapped).
-        halve_islands_at: fractions of the generations after which the worse half of
-            the islands takes over the better half's populations (successive halving).
-        staged: trunk before limbs: links unlock level by level down the tree during
-            the first ``staged`` fraction of the generations (0: all at once).
-        coarse_points, coarse_until: coarse-to-fine (GA only; 0: off): score on this
-            many points only until ``coarse_until`` of the generations.
-        tie_lengths: alike links (one orbit of the skeleton's symmetries) share one length.
-        objective: the cost's settings.
+    """Search settings (hashable), each documented below its field.
 
     The rates, ``learning_rate``, the initial spreads and the objective's
     ``sigma_factor`` and positive weights are traced (:class:`FitParams`): changing
@@ -106,32 +68,71 @@ class FitConfig:
     """
 
     algorithm: str = "ga"
+    """``"ga"`` (branch-swap GA), ``"hc"`` (hill climbing) or the name of any evosax
+    strategy (e.g. ``"cma_es"``)."""
     population: int = 64
+    """Individuals evaluated per generation (per island)."""
     generations: int | None = None
+    """Generations, the first of which evaluates the initial population; ``None``:
+    :func:`auto_generations` (:meth:`for_skeleton`)."""
     epoch: int = 25
+    """Generations per epoch, the unit the search is compiled and reported in; the
+    GA's memetic step ends every epoch."""
     std_init: float = 0.15
+    """Mutation / sampling step (normalised genome units) at the start, decayed
+    exponentially over the generations to ``std_final``."""
     std_final: float = 0.01
+    """Mutation / sampling step at the end."""
     crossover_rate: float = 0.5
+    """Probability that a child takes a subtree from a second parent."""
     mutation_rate: float = 0.15
+    """Per-gene mutation probability."""
     branch_mutation_rate: float = 0.3
+    """Probability that a child mutates one whole subtree instead."""
     branch_reset_rate: float = 0.1
+    """Probability that a child then draws one random subtree's genes anew (a jump
+    out of a local optimum at any step size)."""
     elite_ratio: float = 0.25
+    """Fraction of the population that may become parents."""
     memetic_top: int = 4
+    """At the end of every epoch (GA only) this many best individuals take
+    ``memetic_steps`` Adam steps."""
     memetic_steps: int = 10
+    """Adam steps of the memetic step (0: no memetic step)."""
     final_refine_top: int = 4
+    """How many best individuals of the GA take ``final_refine_steps`` Adam steps at
+    the end (other algorithms: their best point)."""
     final_refine_steps: int = 100
+    """Adam steps at the end (0: none)."""
     learning_rate: float = 0.01
+    """Adam learning rate (genome units)."""
     init_root_std: float = 0.1
+    """Spread of the initial root translation genes around the cloud's centre."""
     init_pca_fraction: float = 0.5
+    """Fraction of the initial population whose root aligns the model's principal
+    axes with the cloud's, spun about the most reliable one."""
     init_pca_std: float = 0.02
+    """Noise on those individuals' root genes."""
     scale_window: float = 1.5
+    """The scale is searched within ``s0 / w .. s0 * w`` of the cloud's spread over
+    the model's (0: the skeleton's range alone)."""
     islands: int = 32
+    """Independent sub-populations searched side by side (vmapped)."""
     halve_islands_at: tuple[float, ...] = (1 / 3, 1 / 2, 2 / 3, 5 / 6)
+    """Fractions of the generations after which the worse half of the islands takes
+    over the better half's populations (successive halving)."""
     staged: float = 0.5
+    """Trunk before limbs: links unlock level by level down the tree during the
+    first ``staged`` fraction of the generations (0: all at once)."""
     coarse_points: int = 0
+    """Coarse-to-fine (GA only; 0: off): score on this many points only, until
+    ``coarse_until`` of the generations."""
     coarse_until: float = 0.5
+    """The fraction of the generations scored on ``coarse_points``."""
     tie_lengths: bool = False
+    """Alike links (one orbit of the skeleton's symmetries) share one length."""
     objective: ObjectiveConfig = field(default_factory=ObjectiveConfig)
+    """The cost's settings."""
 
     def __post_init__(self):  # a list (from JSON, say) would not be hashable
         object.__setattr__(self, "halve_islands_at", tuple(self.halve_islands_at))
