@@ -255,6 +255,7 @@ def fit_file(
     search_lengths: bool = False,
     skeleton_file: str | None = None,
     max_capsules: int | None = None,
+    hypotheses: int = 1,
 ) -> FitOutput:
     """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth image
     or a point-cloud file (``.ply``, ``.pcd``, ``.xyz``, an ``(N, 3)`` ``.npy``: see
@@ -265,7 +266,8 @@ def fit_file(
     link by that many capsules at most (default: :data:`~jaxpose.io.capsules.MAX_CAPSULES`; for a
     :class:`Skeleton` object, the setting it was loaded with, for the record only).
     ``skeleton_file``: the file a :class:`Skeleton` object was loaded from
-    (:func:`load_fit_skeleton`), for the record."""
+    (:func:`load_fit_skeleton`), for the record.  ``hypotheses > 1``: also the best
+    distinct poses (:mod:`jaxpose.search.hypotheses`), under ``"hypotheses"`` in the document."""
     config.validate()
     options.validate()
     skel, skel_file = load_fit_skeleton(skeleton, search_lengths, max_capsules)
@@ -281,7 +283,7 @@ def fit_file(
     notes = [w for w in (scale_warning(skel, cloud, str(path)), unused_scale) if w]
     for w in notes:
         warnings.warn(w, InputWarning, stacklevel=2)
-    result = fit_cloud(cloud, skel, seed, config, progress)
+    result = fit_cloud(cloud, skel, seed, config, progress, hypotheses)
     if not (np.isfinite(float(result.cost)) and np.all(np.isfinite(np.asarray(result.links.end)))):
         raise ConfigError(
             f"{path}: the fit of {skel.name!r} ended with a non-finite cost or pose; "

@@ -56,6 +56,9 @@ def register(sub) -> None:
                    help="one length for alike links (left and right, a spider's legs; "
                         "default: each searched on its own)")
     p.add_argument("--no-refine", action="store_true", help="no gradient refinement (memetic or final)")
+    p.add_argument("--hypotheses", type=int, default=1, metavar="K",
+                   help="also record the K best distinct poses the search found, with their costs, under "
+                        "'hypotheses' in the result (an occluded limb can be in two places; default 1: the answer)")
     p.add_argument("--sigma-factor", type=float, default=ObjectiveConfig.sigma_factor,
                    help="sigma = this x the cloud's spread (1: the paper's objective; "
                         f"default {ObjectiveConfig.sigma_factor})")
@@ -112,6 +115,8 @@ def config_from_args(args) -> FitConfig:
     classes; :class:`ConfigError` names the offending option."""
     if args.seed < 0 or args.seed >= 2**32:
         raise ConfigError(f"--seed must lie in 0 .. 2**32-1, got {args.seed}")
+    if args.hypotheses < 1:
+        raise ConfigError(f"--hypotheses must be >= 1, got {args.hypotheses}")
     cfg = FitConfig(
         algorithm=args.algorithm,
         population=args.population,
@@ -252,7 +257,7 @@ def run(args: argparse.Namespace) -> int:
                 warnings.showwarning = _show_input_warning
                 out = fit_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
                                      search_lengths=args.search_lengths, skeleton_file=skel_file,
-                                     max_capsules=capsules)
+                                     max_capsules=capsules, hypotheses=args.hypotheses)
         finally:
             bar.close()  # end the progress line, also before an error message or Ctrl-C
         msg = (f"{label}{out.skeleton.name}: cost {out.document['cost']:.5f}, "

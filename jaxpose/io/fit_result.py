@@ -60,6 +60,17 @@ def params_table(skel: Skeleton, pose) -> dict:
     return pose_dict(skel, pose)
 
 
+def hypotheses_table(skel: Skeleton, hyp) -> list[dict]:
+    """The best distinct poses, cheapest first (the first is the document's own answer):
+    each one's cost, links and parameters."""
+    out = []
+    for i in range(int(np.shape(hyp.cost)[0])):
+        take = lambda tree: type(tree)(*(np.asarray(x)[i] for x in tree))  # noqa: E731
+        out.append({"cost": float(hyp.cost[i]), "links": links_table(skel, take(hyp.links)),
+                    "params": params_table(skel, take(hyp.pose))})
+    return out
+
+
 def result_document(skel: Skeleton, skeleton_file: str | None, result, config, seed: int, inputs: dict) -> dict:
     """Assemble the JSON document of one fit (plain Python types)."""
     return {
@@ -83,6 +94,7 @@ def result_document(skel: Skeleton, skeleton_file: str | None, result, config, s
             "gradient": int(result.gradient_evaluations),
             "point_to_capsule_distances": float(result.distance_evaluations),
         },
+        **({"hypotheses": hypotheses_table(skel, result.hypotheses)} if result.hypotheses is not None else {}),
         "versions": package_versions(),
         "timing": {"wall_seconds": float(result.wall_time)},
     }

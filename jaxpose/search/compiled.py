@@ -21,7 +21,9 @@ import jax.numpy as jnp
 from .._xla_flags import fast_compile_options
 from ..objective import Cloud
 from ..skeleton import Skeleton
+from ..errors import require_integer
 from .config import FitConfig, FitParams
+from .hypotheses import hypotheses as distinct_hypotheses
 from .loop import EpochSteps, evaluation_counts, search_epoch, search_generations, search_init, search_result
 from .memetic import final_refine, memetic_apply, refine_top
 from .state import FitResult, SearchState
@@ -173,8 +175,11 @@ class Fitter:
         refined = final_refine(self.skeleton, self._static, st, refine)
         return self._compiled.result(st.obs.cloud, self.skeleton, st, history, refined)
 
-    def run(self, cloud: Cloud, key: jax.Array, progress=None) -> FitResult:
-        """A whole fit; ``progress(generation, best_cost, evaluations)`` after every epoch."""
+    def run(self, cloud: Cloud, key: jax.Array, progress=None, hypotheses: int = 1) -> FitResult:
+        """A whole fit; ``progress(generation, best_cost, evaluations)`` after every epoch.
+        ``hypotheses > 1``: also the best distinct poses the islands found
+        (:func:`~jaxpose.search.hypotheses.hypotheses`), in ``FitResult.hypotheses``."""
+        require_integer("hypotheses", hypotheses, 1)
         t0 = time.perf_counter()
         st = self.init(cloud, key)
         hists, gen = [], 0
@@ -184,11 +189,15 @@ class Fitter:
             gen += length
             if progress is not None:
                 progress(gen, float(h[-1]), int(sum(evaluation_counts(st))))
-        res = jax.block_until_ready(self.finish(st, jnp.concatenate(hists)))
+        res = self.finish(st, jnp.concatenate(hists))
+        if hypotheses > 1:
+            res = res._replace(hypotheses=distinct_hypotheses(
+                self.skeleton, self._static, st, res, hypotheses))
+        res = jax.block_until_ready(res)
         return res._replace(wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32))
 
 
 def fit_cloud(cloud: Cloud, skeleton: Skeleton, seed: int = 0, config: FitConfig = FitConfig(),
-              progress=None) -> FitResult:
+              progress=None, hypotheses: int = 1) -> FitResult:
     """Convenience: :meth:`Fitter.run` with an integer seed."""
-    return Fitter(skeleton, config).run(cloud, jax.random.key(seed), progress)
+    return Fitter(skeleton, config).run(cloud, jax.random.key(seed), progress, hypotheses)

@@ -28,6 +28,7 @@ class FitResult(NamedTuple):
     gradient_evaluations: jax.Array  # () int
     distance_evaluations: jax.Array  # () float (can exceed int32)
     wall_time: jax.Array  # () seconds, filled in by Fitter (0 inside jit)
+    hypotheses: Any = None  # the k best distinct poses (search.hypotheses.Hypotheses) when asked for
 
 
 class SearchState(NamedTuple):
