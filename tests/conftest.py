@@ -1,10 +1,15 @@
-"""Test-wide settings."""
+"""Test-wide settings.  The tests mirror the package (tests/io/ for jaxpose/io/, ...);
+wherever they lie they import tests/oracles.py and read tests/fixtures/."""
 
 import os
 import sys
 
+TESTS = os.path.dirname(os.path.abspath(__file__))
+if TESTS not in sys.path:  # `import oracles` from every subfolder
+    sys.path.insert(0, TESTS)
+
 # The command line keeps compiled programs on disk between runs; tests must not
-# depend on (or fill) a user's cache, so it is off here.  tests/test_cli.py turns
+# depend on (or fill) a user's cache, so it is off here.  tests/commands/test_cli.py turns
 # it on explicitly where it is tested.
 os.environ["JAXPOSE_CACHE_DIR"] = "0"
 # MuJoCo picks its OpenGL platform when it is imported; tests/experiments/test_mujoco_views.py renders

@@ -18,7 +18,7 @@ from jaxpose.genome import genome_layout
 mujoco = pytest.importorskip("mujoco")
 from jaxpose.io.mjcf import compile_mjcf, load_mjcf, pose_from_qpos, skeleton_from_model  # noqa: E402
 
-FIXTURES = os.path.join(os.path.dirname(__file__), "fixtures")
+FIXTURES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "fixtures")
 FK_TOL = 1e-5  # metres (positions) and matrix entries (rotations); jaxpose runs in float32
 MODELS = ["ant", "humanoid_lite", "gadget", "planar", "reacher_like"]
 
@@ -33,7 +33,7 @@ _cache = {}
 def model_and_skeleton(name):
     if name not in _cache:
         m = compile_mjcf(fixture(name))
-        # one capsule per body: these tests check the enclosing capsules (tests/test_capsules.py: several)
+        # one capsule per body: these tests check the enclosing capsules (tests/io/test_capsules.py: several)
         _cache[name] = (m, skeleton_from_model(m, source=fixture(name), max_capsules=1))
     return _cache[name]
 

@@ -17,7 +17,7 @@ from jaxpose.kinematics import forward_kinematics
 from jaxpose.genome import genome_layout
 from jaxpose.skeleton import rest_pose
 
-FIXTURES = os.path.join(os.path.dirname(__file__), "fixtures")
+FIXTURES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "fixtures")
 RNG = np.random.default_rng(3)
 
 
@@ -197,7 +197,7 @@ def test_turntable_slabs_cover_the_disk_the_urdf_poses():
     """The gripper's turntable (a cylinder 0.16 wide, 0.04 long, 0.02 above its frame), posed by an
     independent URDF forward kinematics under a tilted root: the turntable's capsules (its own and
     its extra ones, posed by jaxpose) cover it and their axes lie in its middle plane."""
-    from test_import_urdf import hinge_joint_names, oracle_fk
+    from test_urdf import hinge_joint_names, oracle_fk
 
     path = os.path.join(FIXTURES, "gripper.urdf")
     skel = load_skeleton(path, max_capsules=4)

@@ -19,7 +19,7 @@ from jaxpose.objective import Cloud
 
 from oracles import collision_penalty, fk_oracle, pose_dict, segment_segment_distance, stack_fk
 
-SKELETON_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "skeletons")
+SKELETON_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "skeletons")
 seg_jit = jax.jit(segment_distance)
 
 

@@ -17,7 +17,7 @@ from jaxpose.kinematics import forward_kinematics
 from jaxpose.genome import genome_layout
 from jaxpose.skeleton import Pose
 
-FIXTURES = os.path.join(os.path.dirname(__file__), "fixtures")
+FIXTURES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "fixtures")
 FK_TOL = 1e-5  # metres and matrix entries; jaxpose runs in float32
 
 
@@ -113,7 +113,7 @@ def test_chain_mapping():
 
 
 def test_chain_geometry():
-    skel = load_urdf(fixture("chain"), max_capsules=1)  # one capsule per link (tests/test_capsules.py: several)
+    skel = load_urdf(fixture("chain"), max_capsules=1)  # one capsule per link (tests/io/test_capsules.py: several)
     b = skel.index("base")  # collision box 0.3 x 0.2 x 0.04 (the visual sphere of radius 1 is ignored)
     assert float(skel.length[b]) == pytest.approx(0.3, abs=1e-6)
     assert float(skel.radius[b]) == pytest.approx(np.hypot(0.1, 0.02), abs=1e-6)

@@ -25,7 +25,7 @@ from jaxpose.commands.progress import ProgressBar
 
 LINE = re.compile(r"^\r\[(#*)(-*)\] gen (\d+)/(\d+)  best (-?[0-9]+\.[0-9]{5})  ([0-9,]+) evals/s $")
 
-# the same small fit as tests/test_cli.py (one compilation per session for both files)
+# the same small fit as tests/commands/test_cli.py (one compilation per session for both files)
 FIT = ["--skeleton", "spider", "--population", "32", "--generations", "10", "--islands", "1",
        "--no-refine", "--free-space-weight", "0", "--max-points", "256"]
 
