@@ -256,6 +256,7 @@ def fit_file(
     skeleton_file: str | None = None,
     max_capsules: int | None = None,
     hypotheses: int = 1,
+    time_budget: float | None = None,
 ) -> FitOutput:
     """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth image
     or a point-cloud file (``.ply``, ``.pcd``, ``.xyz``, an ``(N, 3)`` ``.npy``: see
@@ -267,7 +268,9 @@ def fit_file(
     :class:`Skeleton` object, the setting it was loaded with, for the record only).
     ``skeleton_file``: the file a :class:`Skeleton` object was loaded from
     (:func:`load_fit_skeleton`), for the record.  ``hypotheses > 1``: also the best
-    distinct poses (:mod:`jaxpose.search.hypotheses`), under ``"hypotheses"`` in the document."""
+    distinct poses (:mod:`jaxpose.search.hypotheses`), under ``"hypotheses"`` in the document.
+    ``time_budget``: seconds of search (:meth:`~jaxpose.search.Fitter.run`), recorded with
+    the generations run under ``"time_budget"``."""
     config.validate()
     options.validate()
     skel, skel_file = load_fit_skeleton(skeleton, search_lengths, max_capsules)
@@ -283,7 +286,14 @@ def fit_file(
     notes = [w for w in (scale_warning(skel, cloud, str(path)), unused_scale) if w]
     for w in notes:
         warnings.warn(w, InputWarning, stacklevel=2)
-    result = fit_cloud(cloud, skel, seed, config, progress, hypotheses)
+    generations_run = [0]
+
+    def report(gen, best, evals):
+        generations_run[0] = gen
+        if progress is not None:
+            progress(gen, best, evals)
+
+    result = fit_cloud(cloud, skel, seed, config, report, hypotheses, time_budget)
     if not (np.isfinite(float(result.cost)) and np.all(np.isfinite(np.asarray(result.links.end)))):
         raise ConfigError(
             f"{path}: the fit of {skel.name!r} ended with a non-finite cost or pose; "
@@ -294,5 +304,7 @@ def fit_file(
         doc["frame"] = frame
     doc["skeleton"]["search_lengths"] = bool(search_lengths)
     doc["skeleton"]["max_capsules"] = robot_max_capsules(skel_file, max_capsules, not isinstance(skeleton, Skeleton))
+    if time_budget is not None:
+        doc["time_budget"] = {"seconds": float(time_budget), "generations_run": generations_run[0]}
     doc["warnings"] = notes
     return FitOutput(skel, result, depth, k, doc)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import math
 import os
 import re
 import sys
@@ -56,6 +57,9 @@ def register(sub) -> None:
                    help="one length for alike links (left and right, a spider's legs; "
                         "default: each searched on its own)")
     p.add_argument("--no-refine", action="store_true", help="no gradient refinement (memetic or final)")
+    p.add_argument("--time-budget", type=float, metavar="SECONDS",
+                   help="anytime fit: end the search after the epoch in which this many seconds of search "
+                        "(compilation excluded) have passed, then refine and write the best as usual")
     p.add_argument("--hypotheses", type=int, default=1, metavar="K",
                    help="also record the K best distinct poses the search found, with their costs, under "
                         "'hypotheses' in the result (an occluded limb can be in two places; default 1: the answer)")
@@ -117,6 +121,8 @@ def config_from_args(args) -> FitConfig:
         raise ConfigError(f"--seed must lie in 0 .. 2**32-1, got {args.seed}")
     if args.hypotheses < 1:
         raise ConfigError(f"--hypotheses must be >= 1, got {args.hypotheses}")
+    if args.time_budget is not None and not (math.isfinite(args.time_budget) and args.time_budget > 0):
+        raise ConfigError(f"--time-budget must be a positive number of seconds, got {args.time_budget}")
     cfg = FitConfig(
         algorithm=args.algorithm,
         population=args.population,
@@ -257,7 +263,8 @@ def run(args: argparse.Namespace) -> int:
                 warnings.showwarning = _show_input_warning
                 out = fit_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
                                      search_lengths=args.search_lengths, skeleton_file=skel_file,
-                                     max_capsules=capsules, hypotheses=args.hypotheses)
+                                     max_capsules=capsules, hypotheses=args.hypotheses,
+                                     time_budget=args.time_budget)
         finally:
             bar.close()  # end the progress line, also before an error message or Ctrl-C
         msg = (f"{label}{out.skeleton.name}: cost {out.document['cost']:.5f}, "

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 from .._xla_flags import fast_compile_options
 from ..objective import Cloud
 from ..skeleton import Skeleton
-from ..errors import require_integer
+from ..errors import ConfigError, require_finite, require_integer
 from .config import FitConfig, FitParams
 from .hypotheses import hypotheses as distinct_hypotheses
 from .loop import EpochSteps, evaluation_counts, search_epoch, search_generations, search_init, search_result
@@ -175,20 +175,32 @@ class Fitter:
         refined = final_refine(self.skeleton, self._static, st, refine)
         return self._compiled.result(st.obs.cloud, self.skeleton, st, history, refined)
 
-    def run(self, cloud: Cloud, key: jax.Array, progress=None, hypotheses: int = 1) -> FitResult:
+    def run(self, cloud: Cloud, key: jax.Array, progress=None, hypotheses: int = 1,
+            time_budget: float | None = None) -> FitResult:
         """A whole fit; ``progress(generation, best_cost, evaluations)`` after every epoch.
+
         ``hypotheses > 1``: also the best distinct poses the islands found
-        (:func:`~jaxpose.search.hypotheses.hypotheses`), in ``FitResult.hypotheses``."""
+        (:func:`~jaxpose.search.hypotheses.hypotheses`), in ``FitResult.hypotheses``.
+        ``time_budget`` (seconds of search, compilation excluded): an anytime fit that
+        ends after the epoch in which the budget runs out, then refines and returns
+        its best as usual; the history's generations not run repeat its last cost,
+        and the evaluation counts are those made."""
         require_integer("hypotheses", hypotheses, 1)
+        if time_budget is not None and not require_finite("time_budget", time_budget) > 0:
+            raise ConfigError(f"time_budget must be > 0 seconds, got {time_budget}")
         t0 = time.perf_counter()
         st = self.init(cloud, key)
-        hists, gen = [], 0
+        hists, gen, t_search = [], 0, time.perf_counter()
         for length in self.epoch_lengths:
             st, h = self.step(st, length)
             hists.append(h)
             gen += length
             if progress is not None:
                 progress(gen, float(h[-1]), int(sum(evaluation_counts(st))))
+            if time_budget is not None and time.perf_counter() - t_search > time_budget:
+                break
+        if gen < self.config.generations:  # stopped by the budget: the result program's history shape
+            hists.append(jnp.full((self.config.generations - gen,), hists[-1][-1]))
         res = self.finish(st, jnp.concatenate(hists))
         if hypotheses > 1:
             res = res._replace(hypotheses=distinct_hypotheses(
@@ -198,6 +210,6 @@ class Fitter:
 
 
 def fit_cloud(cloud: Cloud, skeleton: Skeleton, seed: int = 0, config: FitConfig = FitConfig(),
-              progress=None, hypotheses: int = 1) -> FitResult:
+              progress=None, hypotheses: int = 1, time_budget: float | None = None) -> FitResult:
     """Convenience: :meth:`Fitter.run` with an integer seed."""
-    return Fitter(skeleton, config).run(cloud, jax.random.key(seed), progress, hypotheses)
+    return Fitter(skeleton, config).run(cloud, jax.random.key(seed), progress, hypotheses, time_budget)

@@ -1,0 +1,65 @@
+"""An anytime fit (``Fitter.run(..., time_budget=...)``): it ends after the epoch in which
+the budget runs out.  The clock is faked, so nothing here depends on the machine's speed."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+import pytest
+from search_cases import GA, expected_counts, skeleton, spider_cloud
+
+import jaxpose.search.compiled as compiled
+from jaxpose.errors import ConfigError
+from jaxpose.search import fit_cloud
+
+# four epochs of two generations, two islands: a budget can end it early
+LONG = dataclasses.replace(GA, generations=8, epoch=2, islands=2, halve_islands_at=())
+
+
+@pytest.fixture
+def slow_clock(monkeypatch):
+    """Every reading of the fit's clock is 10 s after the previous one."""
+    ticks = itertools.count(0.0, 10.0)
+    monkeypatch.setattr(compiled.time, "perf_counter", lambda: next(ticks))
+
+
+def test_a_budget_ends_the_search_after_the_epoch_it_runs_out_in(slow_clock):
+    epochs = []
+    res = fit_cloud(spider_cloud(), skeleton(), 0, LONG, progress=lambda g, c, e: epochs.append(g), time_budget=15.0)
+    # the clock reads 10 s after the start of the search at the end of the first epoch (within the
+    # budget), 20 s at the end of the second: the search ends there, after 4 of 8 generations
+    assert epochs == [2, 4]
+    short = dataclasses.replace(LONG, generations=4)
+    want_obj, want_grad = expected_counts(short)
+    assert int(res.objective_evaluations) == want_obj and int(res.gradient_evaluations) == want_grad
+    hist = np.asarray(res.history)
+    assert hist.shape == (8,) and np.all(hist[4:] == hist[3])  # the generations not run repeat the last cost
+    assert np.isfinite(float(res.cost)) and float(res.cost) <= hist[3]
+
+
+def test_a_generous_budget_changes_nothing():
+    cloud, skel = spider_cloud(), skeleton()
+    a = fit_cloud(cloud, skel, 0, LONG)
+    b = fit_cloud(cloud, skel, 0, LONG, time_budget=1e6)
+    np.testing.assert_array_equal(np.asarray(a.genome), np.asarray(b.genome))
+    np.testing.assert_array_equal(np.asarray(a.history), np.asarray(b.history))
+
+
+@pytest.mark.parametrize("budget", [0.0, -1.0, float("nan"), float("inf")])
+def test_a_budget_must_be_a_positive_number(budget):
+    with pytest.raises(ConfigError, match="time_budget"):
+        fit_cloud(spider_cloud(), skeleton(), 0, LONG, time_budget=budget)
+
+
+def test_the_result_document_records_the_budget_and_the_generations_run():
+    from importlib.resources import files
+
+    from jaxpose import InputOptions, fit_file
+
+    data = files("jaxpose") / "data"
+    options = InputOptions(background=str(data / "spider_demo_background.png"), max_points=256)
+    doc = fit_file(str(data / "spider_demo.png"), "spider", LONG, 0, options, time_budget=1e6).document
+    assert doc["time_budget"] == {"seconds": 1e6, "generations_run": LONG.generations}
+    assert "time_budget" not in fit_file(str(data / "spider_demo.png"), "spider", LONG, 0, options).document
