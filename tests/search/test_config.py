@@ -76,7 +76,7 @@ def test_halve_islands_at_must_hold_fractions():
 
 
 def test_coarse_to_fine_is_for_the_ga_only():
-    with pytest.raises(ConfigError, match="GA only"):
+    with pytest.raises(ConfigError, match=r"the GA \(algorithm 'ga'\) only"):
         dataclasses.replace(HC, coarse_points=10).validate()
 
 
