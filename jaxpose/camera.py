@@ -167,11 +167,10 @@ def off_planes(
     depth, like the background tolerance of :func:`foreground_mask`).  A plane is
     removed only when it holds at least ``min_fraction`` of the points left, is
     flat (the RMS of its points' distances in units of ``tol`` at most
-    ``max_spread``: a rendered floor measures 0.02-0.12, a slab cut through a body
-    0.13-0.52) and is a surface rather than a few thin parts that happen to line
-    up (its points cover at least ``min_cover`` of a 16 x 16 grid over their
-    extent in the plane: floors 0.67-0.86, a spider's legs or a body's limbs
-    0.12-0.43).  The search stops at the first plane that fails.  Float32
+    ``max_spread``) and is a surface rather than a few thin parts that happen to
+    line up (its points cover at least ``min_cover`` of a 16 x 16 grid over their
+    extent in the plane); the thresholds and what floors and bodies measure:
+    docs/input.md, "Planes".  The search stops at the first plane that fails.  Float32
     coordinates (so that a depth image and its points written as a cloud give
     the same mask); deterministic for a ``seed``."""
     p = np.asarray(points, np.float32).astype(np.float64)
