@@ -31,6 +31,7 @@ data: $(STAMP)
 paper: $(STAMP)
 	$(BIN)/python experiments/paper_table.py
 	$(BIN)/python experiments/mujoco_views.py
+	$(BIN)/python experiments/hard_poses.py
 
 sweep: $(STAMP)
 	$(BIN)/python experiments/sweep_population.py

@@ -18,6 +18,7 @@ import time
 
 from outputs import log
 
+from jaxpose import datasets as D
 from jaxpose import render as R
 from jaxpose.io.atomic import write_json
 from jaxpose.io.skeleton_file import load_skeleton
@@ -30,10 +31,22 @@ def write_dataset(model: str, out_dir: str, seed: int = 0, quiet: bool = False) 
     skeleton_file = f"skeletons/{model}.toml"
     skel = load_skeleton(model)
     sensor = R.SensorModel()
-    make = R.spider_dataset if model == "spider" else R.humanoid_dataset
+    make = D.spider_dataset if model == "spider" else D.humanoid_dataset
     t0 = time.time()
     samples = make(skel, seed=seed, sensor=sensor)
-    folder = os.path.join(out_dir, model)
+    return write_samples(skel, samples, os.path.join(out_dir, model), skeleton_file, seed, sensor, model,
+                         quiet=quiet, t0=t0)
+
+
+def write_samples(skel, samples, folder: str, skeleton_file: str, seed: int, sensor=None, model: str | None = None,
+                  extra: dict | None = None, quiet: bool = False, t0: float | None = None) -> dict:
+    """Write ``samples`` (:class:`jaxpose.datasets.Sample`: name, view, meta) to ``folder``: per image the
+    depth PNG, the background PNG and the truth JSON, and ``index.json`` listing them.
+
+    ``sensor`` is the :class:`~jaxpose.render.SensorModel` the images were made with (``None``:
+    another renderer's; say what it was in ``extra``, whose keys are added to the index).
+    """
+    t0 = time.time() if t0 is None else t0
     os.makedirs(folder, exist_ok=True)
     entries = []
     for s in samples:
@@ -52,13 +65,14 @@ def write_dataset(model: str, out_dir: str, seed: int = 0, quiet: bool = False) 
         })
     k = samples[0].view.intrinsics
     index = {
-        "model": model,
+        "model": model or skel.name,
         "skeleton": {"name": skel.name, "file": skeleton_file},
         "seed": seed,
         "intrinsics": {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "width": k.width, "height": k.height},
         "depth_scale": 0.001,
-        "sensor": dataclasses.asdict(sensor),
+        "sensor": dataclasses.asdict(sensor) if sensor is not None else None,
         "images": entries,
+        **(extra or {}),
     }
     write_json(os.path.join(folder, "index.json"), index)
     if not quiet:
