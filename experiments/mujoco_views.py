@@ -6,7 +6,7 @@ write (MuJoCo's OpenGL depth buffer, ``mujoco.Renderer``) and show each model's 
 geometry (boxes, cylinders, ellipsoids, meshes), which jaxpose approximates by capsules
 (up to ``--capsules`` per link).  The truth is the pose MuJoCo's joint values give: jaxpose's
 forward kinematics of :func:`~jaxpose.io.mjcf.pose_from_qpos` (equal to MuJoCo's
-``mj_kinematics``, tests/test_import_mjcf.py), moved into the camera's frame.
+``mj_kinematics``, tests/io/test_mjcf.py), moved into the camera's frame.
 
 Per model and view: joint values drawn around ``qpos0`` (``--spread`` times half of each
 range), a free camera on a random orbit (elevation 15-45 degrees down, any azimuth)

@@ -87,21 +87,22 @@ def main(argv=None) -> int:
     try:
         return int(args.func(args) or 0)
     except JaxposeError as e:
-        print(f"jaxpose: error: {_one_line(e)}", file=sys.stderr)
+        print(f"jaxpose: error: {one_line(e)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # `jaxpose eval ... | head`: the reader has gone, nothing to report
         sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - no flush of the dead pipe at exit
         return 141
     except OSError as e:  # e.g. a disk that fills up while writing
         where = f"{e.filename}: " if getattr(e, "filename", None) else ""
-        print(f"jaxpose: error: {where}{e.strerror or _one_line(e)}", file=sys.stderr)
+        print(f"jaxpose: error: {where}{e.strerror or one_line(e)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("jaxpose: interrupted (no partially written output file is left behind)", file=sys.stderr)
         return 130
 
 
-def _one_line(e: BaseException) -> str:
+def one_line(e: BaseException) -> str:
+    """An error's message on one line (what ``jaxpose: error:`` prints)."""
     return " ".join(str(e).split()) or e.__class__.__name__
 
 

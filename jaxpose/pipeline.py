@@ -96,10 +96,10 @@ class FitOutput:
 
 def load_observation(depth_path: str, options: InputOptions = InputOptions()):
     """Read and validate a depth file (and background); return ``(depth, intrinsics, cloud)``."""
-    return _read_observation(depth_path, options)[:3]
+    return read_observation(depth_path, options)[:3]
 
 
-def _read_observation(depth_path: str, options: InputOptions):
+def read_observation(depth_path: str, options: InputOptions):
     """:func:`load_observation`, and whether the depth scale was applied (integer pixels
     in the depth image or its background)."""
     options.validate()
@@ -280,7 +280,7 @@ def fit_file(
         depth, k, cloud, inputs = load_cloud_observation(path, options)
         frame, unused_scale = "sensor (the cloud's viewpoint; x right, y down, z forward), metres", None
     else:
-        depth, k, cloud, scaled = _read_observation(path, options)
+        depth, k, cloud, scaled = read_observation(path, options)
         inputs, frame = _depth_record(path, options, k, cloud, scaled), None
         unused_scale = unused_depth_scale(options, scaled, str(path))
     notes = [w for w in (scale_warning(skel, cloud, str(path)), unused_scale) if w]

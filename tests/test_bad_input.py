@@ -160,14 +160,14 @@ def inputs(tmp_path_factory) -> Path:
 def run_cli(argv, capsys, monkeypatch=None):
     """``jaxpose argv`` in-process -> (status, stdout, stderr lines, exception type name or None)."""
     seen = []
-    one_line = cli._one_line
+    one_line = cli.one_line
 
     def record(e):
         seen.append(type(e).__name__)
         return one_line(e)
 
     patch = monkeypatch or pytest.MonkeyPatch()
-    patch.setattr(cli, "_one_line", record)
+    patch.setattr(cli, "one_line", record)
     try:
         rc = cli.main(argv)
     finally:
@@ -469,7 +469,7 @@ def test_float_images_are_metres_integer_images_stored_units(tmp_path, ext):
 
 def test_the_depth_scale_is_recorded_and_warned_about_only_where_it_applies(tmp_path):
     """Applied to integer pixels in the image or its background; float pixels are metres."""
-    from jaxpose.pipeline import InputOptions, _read_observation, unused_depth_scale
+    from jaxpose.pipeline import InputOptions, read_observation, unused_depth_scale
 
     metres = np.full((30, 40), 2.0, np.float32)
     metres[10:20, 15:25] = 1.5
@@ -478,7 +478,7 @@ def test_the_depth_scale_is_recorded_and_warned_about_only_where_it_applies(tmp_
     np.save(tmp_path / "bg_mm.npy", np.full((30, 40), 2000, np.uint16))
     for background, scaled in ((None, False), ("bg_m.npy", False), ("bg_mm.npy", True)):
         opts = InputOptions("30,30,19.5,14.5", depth_scale=0.001, background=background and str(tmp_path / background))
-        got = _read_observation(str(tmp_path / "m.npy"), opts)
+        got = read_observation(str(tmp_path / "m.npy"), opts)
         assert got[3] is scaled and int(np.sum(np.asarray(got[2].weights) > 0)) > 0
         odd = InputOptions(opts.intrinsics, depth_scale=0.002, background=opts.background)
         assert (unused_depth_scale(odd, scaled, "m.npy") is None) is scaled
