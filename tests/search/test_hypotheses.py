@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from search_cases import GA, skeleton, spider_cloud
+from search_cases import GA, N_POINTS, skeleton, spider_cloud
 
 from jaxpose import cloud_spread, forward_kinematics
 from jaxpose.search import fit_cloud
@@ -78,7 +78,7 @@ def test_the_result_document_records_them(tmp_path):
     from jaxpose import InputOptions, fit_file
 
     data = files("jaxpose") / "data"
-    options = InputOptions(background=str(data / "spider_demo_background.png"), max_points=256)
+    options = InputOptions(background=str(data / "spider_demo_background.png"), max_points=N_POINTS)
     out = fit_file(str(data / "spider_demo.png"), "spider", HYP, 0, options, hypotheses=2)
     doc = out.document
     hyp = doc["hypotheses"]
