@@ -181,28 +181,6 @@ def humanoid_samples(set_name: str, seed: int, count: int) -> list:
 # --------------------------------------------------------------------------- MuJoCo's renderer
 
 
-def uniform_qpos(m, rng) -> np.ndarray:
-    """qpos with every hinge and slide uniform over its range (unlimited hinges: a whole turn) and
-    every ball joint a uniform rotation; the only top-level body's joints (the root) stay at qpos0."""
-    import mujoco
-
-    hinge, slide, ball = (int(t) for t in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE,
-                                           mujoco.mjtJoint.mjJNT_BALL))
-    q = m.qpos0.copy()
-    top = [b for b in range(1, m.nbody) if m.body_parentid[b] == 0]
-    for j in range(m.njnt):
-        a, t = int(m.jnt_qposadr[j]), int(m.jnt_type[j])
-        if len(top) == 1 and m.jnt_bodyid[j] == top[0]:
-            continue
-        if t in (hinge, slide):
-            lo, hi = m.jnt_range[j] if m.jnt_limited[j] else (q[a] - np.pi, q[a] + np.pi)
-            q[a] = rng.uniform(lo, hi)
-        elif t == ball:
-            v = rng.standard_normal(4)
-            q[a: a + 4] = v / np.linalg.norm(v)
-    return q
-
-
 def mujoco_interpenetration(m, d) -> float:
     """Total penetration depth (metres) of MuJoCo's contacts between the model's own geoms."""
     import mujoco
@@ -276,7 +254,7 @@ def mujoco_samples(seed: int, count: int, path: str = MUJOCO_MODEL) -> tuple[lis
             rng = np.random.default_rng([seed, 29, SETS.index("mujoco"), i])
             best = (None, np.inf, 0)
             for t in range(1, MAX_TRIES + 1):
-                q = uniform_qpos(m, rng)
+                q = MV.random_qpos(m, rng, None)  # uniform over every joint's range
                 d.qpos[:] = q
                 c = mujoco_interpenetration(m, d)
                 if c < best[1]:
@@ -448,11 +426,11 @@ def diagnose_image(ds, entry: dict, config, seed: int) -> dict:
     costs = np.asarray(population_cost(obs, stack(ps, ts), stack(pe, te), radii, obj, pairs=pairs))
     terms = {"data": data_cost(obs.cloud, obs.sigma, stack(ps, ts), stack(pe, te), radii, obj.block)}
     if obj.free_space_weight != 0:
-        terms["free_space"] = obj.free_space_weight * free_space_cost(obs.fmap, obs.sigma, stack(ps, ts), stack(pe, te),
-                                                                       obj.free_space_samples, radii)
+        terms["free_space"] = obj.free_space_weight * free_space_cost(
+            obs.fmap, obs.sigma, stack(ps, ts), stack(pe, te), obj.free_space_samples, radii)
     if pairs is not None:
-        terms["collision"] = obj.collision_weight * collision_cost(pairs, obs.sigma, stack(ps, ts), stack(pe, te), radii,
-                                                                   obj.collision_margin)
+        terms["collision"] = obj.collision_weight * collision_cost(
+            pairs, obs.sigma, stack(ps, ts), stack(pe, te), radii, obj.collision_margin)
     # the truth as the search can express it: encoded in the fit's bounds (clipped) and decoded
     bounds = search_bounds(skel, obs, config)
     clipped = forward_kinematics(skel, jaxpose.decode(skel, bounds, jaxpose.encode(skel, bounds, true_pose)))
@@ -467,7 +445,8 @@ def diagnose_image(ds, entry: dict, config, seed: int) -> dict:
     correct = pcp(ps[perm], pe[perm], ts, te)
     missed = scored & ~correct
     frames = np.array([b == i for i, b in enumerate(skel.bodies)])
-    origin_err = np.linalg.norm(np.asarray(res.links.origin, np.float64)[perm] - np.asarray(tl.origin, np.float64), axis=1)
+    origin_err = np.linalg.norm(np.asarray(res.links.origin, np.float64)[perm] - np.asarray(tl.origin, np.float64),
+                                axis=1)
     visible = np.array([float(v) for v in _truth_visible(truth_path, skel)])
     swapped = swapped_links(skel, ps[perm], pe[perm], ts, te)
     pen = link_penetration(skel, ps, pe, np.asarray(res.links.radius), obj.collision_margin)[perm]
@@ -482,7 +461,8 @@ def diagnose_image(ds, entry: dict, config, seed: int) -> dict:
         "found_cost": found, "result_cost": float(res.cost), "truth_cost": truth,
         "truth_clipped_cost": clip_cost,
         "terms": {k: [float(x) for x in np.asarray(v)] for k, v in terms.items()},  # [found, truth]
-        "found_links": {"start": ps.tolist(), "end": pe.tolist(), "radius": np.asarray(res.links.radius).tolist()}, "truth_clip_deviation_m": clip_dev,
+        "found_links": {"start": ps.tolist(), "end": pe.tolist(), "radius": np.asarray(res.links.radius).tolist()},
+        "truth_clip_deviation_m": clip_dev,
         "verdict": None if not missed.any() else classify(found, truth),
         "root_error_deg": rotation_angle_deg(np.asarray(res.links.R_world_link)[0], np.asarray(tl.R_world_link)[0]),
         "links": [{"name": n, "scored": bool(scored[i]), "correct": bool(correct[i]), "visible": float(visible[i]),
@@ -530,8 +510,10 @@ def summarise(records: list[dict]) -> dict:
             "pcp": float(np.mean([r["pcp"] for r in rs])),
             "origins_10cm": float(np.mean([r["origins_10cm"] for r in rs])),
             "pck_10cm": float(np.mean([r["pck_10cm"] for r in rs])),
-            "visible_links": len(seen), "visible_pcp": float(np.mean([ln["correct"] for ln in seen])) if seen else None,
-            "hidden_links": len(hidden), "hidden_pcp": float(np.mean([ln["correct"] for ln in hidden])) if hidden else None,
+            "visible_links": len(seen),
+            "visible_pcp": float(np.mean([ln["correct"] for ln in seen])) if seen else None,
+            "hidden_links": len(hidden),
+            "hidden_pcp": float(np.mean([ln["correct"] for ln in hidden])) if hidden else None,
             "perfect": sum(not r["verdict"] for r in rs),
             "whole_body_misses": sum(r["pcp"] < WHOLE_BODY_MISS for r in rs),
             "misses": len(misses), "split": split,

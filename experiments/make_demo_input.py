@@ -13,7 +13,7 @@ import sys
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.dirname(HERE))
 
-from jaxpose.io.skeleton_file import load_skeleton, resolve_skeleton_path  # noqa: E402
+from jaxpose.io.skeleton_file import load_skeleton  # noqa: E402
 from jaxpose.io.truth import write_view  # noqa: E402
 from jaxpose.datasets import random_pose, render_orbit  # noqa: E402
 

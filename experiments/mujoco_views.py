@@ -105,10 +105,11 @@ def frames_score(skel, fit_links, true_R, true_origin) -> float:
     return float(np.mean(np.all(err <= FRAME_TOL, axis=1)))
 
 
-def random_qpos(m, rng, spread: float, root_joints: bool = True) -> np.ndarray:
+def random_qpos(m, rng, spread: float | None, root_joints: bool = True) -> np.ndarray:
     """Joint values around ``qpos0`` (clipped into range): hinges and slides normal with ``spread``
     x half their range (unlimited: half a turn, or the model's size), kept in range; balls a random
-    turn of ``spread`` x 90 degrees in the mean.  The joints of the only top-level body (a free
+    turn of ``spread`` x 90 degrees in the mean.  ``spread=None``: uniform over the whole range
+    instead, and balls a uniform rotation.  The joints of the only top-level body (a free
     joint, a planar walker's root slides and hinge) stay: they are the root pose, and the camera
     moves instead (a walker's root slid or tipped at random would sink into its floor); with
     ``root_joints=False`` (URDF files, whose root link has no joint) every joint moves."""
@@ -128,7 +129,13 @@ def random_qpos(m, rng, spread: float, root_joints: bool = True) -> np.ndarray:
             else:
                 r = np.pi if t == hinge else 0.5 * m.stat.extent
                 lo, hi = q[a] - r, q[a] + r
-            q[a] = np.clip(np.clip(q[a], lo, hi) + spread * (hi - lo) / 2 * rng.standard_normal(), lo, hi)
+            if spread is None:
+                q[a] = rng.uniform(lo, hi)
+            else:
+                q[a] = np.clip(np.clip(q[a], lo, hi) + spread * (hi - lo) / 2 * rng.standard_normal(), lo, hi)
+        elif t == ball and spread is None:
+            v = rng.standard_normal(4)
+            q[a : a + 4] = v / np.linalg.norm(v)
         elif t == ball:
             axis = rng.standard_normal(3)
             angle = spread * np.pi / 2 * abs(rng.standard_normal())

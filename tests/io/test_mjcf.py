@@ -42,6 +42,15 @@ def body_name(m, b):
     return m.body(b).name or f"body{b}"
 
 
+def posed_at_random(m, skel, rng):
+    """MuJoCo's kinematics and jaxpose's links (a batch of one) at one :func:`random_qpos`."""
+    d = mujoco.MjData(m)
+    q = random_qpos(m, rng)
+    d.qpos[:] = q
+    mujoco.mj_kinematics(m, d)
+    return d, batched_fk(skel, [pose_from_qpos(skel, m, q)])
+
+
 def random_qpos(m, rng):
     q = m.qpos0.copy()
     for j in range(m.njnt):
@@ -188,12 +197,7 @@ def test_forward_kinematics_matches_mujoco(name):
 
 def test_ant_capsules_match_mujoco_capsules():
     m, skel = model_and_skeleton("ant")
-    d = mujoco.MjData(m)
-    rng = np.random.default_rng(3)
-    q = random_qpos(m, rng)
-    d.qpos[:] = q
-    mujoco.mj_kinematics(m, d)
-    links = batched_fk(skel, [pose_from_qpos(skel, m, q)])
+    d, links = posed_at_random(m, skel, np.random.default_rng(3))
     for g in range(m.ngeom):
         if m.geom_type[g] != mujoco.mjtGeom.mjGEOM_CAPSULE:
             continue
@@ -235,12 +239,8 @@ def _surface_points(m, d, g, rng):
 @pytest.mark.parametrize("name", MODELS)
 def test_capsules_enclose_every_geom(name):
     m, skel = model_and_skeleton(name)
-    d = mujoco.MjData(m)
     rng = np.random.default_rng(1)
-    q = random_qpos(m, rng)
-    d.qpos[:] = q
-    mujoco.mj_kinematics(m, d)
-    links = batched_fk(skel, [pose_from_qpos(skel, m, q)])
+    d, links = posed_at_random(m, skel, rng)
     for g in range(m.ngeom):
         if m.geom_bodyid[g] == 0:
             continue
