@@ -1,7 +1,8 @@
 """The ``result.json`` written by ``jaxpose fit`` (schema: docs/result_json.md).
 
 Every number except those under ``"timing"`` is bit-identical for the same
-inputs, seed and config on CPU.
+inputs, seed and config on CPU (not with a time budget: the generations run
+depend on the machine's speed).
 """
 
 from __future__ import annotations

@@ -50,11 +50,15 @@ def rescore_island(skel: Skeleton, config: FitConfig, st: SearchState) -> Search
     return st._replace(algo_state=state, objective_evaluations=st.objective_evaluations + both.shape[0])
 
 
+def rescore_all(skel: Skeleton, config: FitConfig, st: SearchState) -> SearchState:
+    """:func:`rescore_island` every island now (an anytime fit that ends before the switch)."""
+    return per_island(config, partial(rescore_island, skel, config), st)
+
+
 def rescore_at_switch(skel: Skeleton, config: FitConfig, st: SearchState) -> SearchState:
     """At the coarse-to-fine switch (:func:`coarse_switch`), :func:`rescore_island` every island."""
     switch = coarse_switch(config, st.obs.cloud.points.shape[-2])
     if switch is None:
         return st
     gen = st.algo_state.generation_counter if config.islands == 1 else st.algo_state.generation_counter[0]
-    return jax.lax.cond(gen == switch, lambda s: per_island(config, partial(rescore_island, skel, config), s),
-                        lambda s: s, st)
+    return jax.lax.cond(gen == switch, lambda s: rescore_all(skel, config, s), lambda s: s, st)

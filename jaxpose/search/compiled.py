@@ -22,6 +22,7 @@ from .._xla_flags import fast_compile_options
 from ..objective import Cloud
 from ..skeleton import Skeleton
 from ..errors import ConfigError, require_finite, require_integer
+from .coarse import coarse_switch, rescore_all
 from .config import FitConfig, FitParams
 from .hypotheses import hypotheses as distinct_hypotheses
 from .loop import EpochSteps, evaluation_counts, search_epoch, search_generations, search_init, search_result
@@ -38,6 +39,7 @@ refine_jit = jax.jit(refine_top, static_argnames=("config", "m"), compiler_optio
 memetic_apply_jit = jax.jit(memetic_apply, static_argnames="config", compiler_options=_ONCE)
 result_jit = jax.jit(search_result, static_argnames="config", compiler_options=_ONCE)
 JIT_STEPS = EpochSteps(generations_jit, refine_jit, memetic_apply_jit)
+rescore_jit = jax.jit(rescore_all, static_argnames="config", compiler_options=_ONCE)  # an anytime fit's early end
 
 
 class CompiledSearch(NamedTuple):
@@ -164,16 +166,26 @@ class Fitter:
         self._compiled = self._cache.get(cloud, self.skeleton, key, self._static, self.params)
         return self._compiled.init(cloud, self.skeleton, key, params=self.params)
 
+    def _programs(self) -> CompiledSearch:
+        if self._compiled is None:
+            raise RuntimeError("Fitter: call init(cloud, key) before step or finish")
+        return self._compiled
+
     def step(self, st: SearchState, length: int) -> tuple[SearchState, jax.Array]:
         """One epoch of ``length`` generations (one of :attr:`epoch_lengths`); returns the
-        state and the best cost after each generation ``(length,)``."""
-        return search_epoch(self.skeleton, self._static, st, length, self._compiled.steps())
+        state and the best cost after each generation ``(length,)``.  Runs the programs of
+        the cloud size of the last :meth:`init`."""
+        if length not in self.epoch_lengths:
+            raise ConfigError(f"Fitter.step: an epoch of {length} generations; this fit's epochs are "
+                              f"{sorted(set(self.epoch_lengths))}")
+        return search_epoch(self.skeleton, self._static, st, length, self._programs().steps())
 
     def finish(self, st: SearchState, history) -> FitResult:
         """The final refinement and the best individual over all islands."""
-        refine = lambda sk, c, s, m, steps: self._compiled.refine[m](sk, s, steps)  # noqa: E731
+        programs = self._programs()
+        refine = lambda sk, c, s, m, steps: programs.refine[m](sk, s, steps)  # noqa: E731
         refined = final_refine(self.skeleton, self._static, st, refine)
-        return self._compiled.result(st.obs.cloud, self.skeleton, st, history, refined)
+        return programs.result(st.obs.cloud, self.skeleton, st, history, refined)
 
     def run(self, cloud: Cloud, key: jax.Array, progress=None, hypotheses: int = 1,
             time_budget: float | None = None) -> FitResult:
@@ -197,10 +209,14 @@ class Fitter:
             gen += length
             if progress is not None:
                 progress(gen, float(h[-1]), int(sum(evaluation_counts(st))))
-            if time_budget is not None and time.perf_counter() - t_search > time_budget:
-                break
+            if time_budget is not None:
+                jax.block_until_ready(h)  # the clock must see the epoch done, not just queued
+                if time.perf_counter() - t_search > time_budget:
+                    break
         if gen < self.config.generations:  # stopped by the budget: the result program's history shape
             hists.append(jnp.full((self.config.generations - gen,), hists[-1][-1]))
+            if (switch := coarse_switch(self._static, cloud.points.shape[0])) is not None and gen <= switch:
+                st = rescore_jit(self.skeleton, self._static, st)  # costs on every point, as a full fit's
         res = self.finish(st, jnp.concatenate(hists))
         if hypotheses > 1:
             res = res._replace(hypotheses=distinct_hypotheses(

@@ -139,6 +139,10 @@ class FitConfig:
 
     def validate(self) -> "FitConfig":
         """Raise :class:`ConfigError` naming the first impossible setting; return ``self``."""
+        if any(getattr(self, n) is None for n in TRACED):
+            raise ConfigError("this config is a static one (FitConfig.static(): its traced settings read None); "
+                              "a fit needs the full FitConfig")
+
         def within(name, lo, hi, lo_open=False, hi_open=False):
             v = require_finite(name, getattr(self, name))
             if not ((lo < v if lo_open else lo <= v) and (v < hi if hi_open else v <= hi)):

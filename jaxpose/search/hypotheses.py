@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._xla_flags import fast_compile_options
 from ..genome import decode
 from ..kinematics import Links, forward_kinematics
 from ..objective import cloud_spread
@@ -68,47 +69,53 @@ def candidates(st: SearchState) -> tuple[jax.Array, jax.Array]:
 def hypotheses(skel: Skeleton, config: FitConfig, st: SearchState, answer, k: int,
                min_move: float = MIN_MOVE) -> Hypotheses:
     """The fit's ``answer`` (its :class:`~jaxpose.search.FitResult`) and up to ``k - 1`` other distinct
-    poses from the finished search ``st`` (``config``: the static config it ran), each
-    refined by ``config.final_refine_steps`` Adam steps.  Fewer than ``k`` when the
-    islands found fewer distinct poses."""
+    poses from the finished search ``st`` (``config``: the static config it ran), refined like
+    the answer (when the final refinement is on).  Fewer than ``k`` when the islands found
+    fewer distinct poses.  NumPy arrays; every program runs at shapes fixed by the config and
+    ``k``, so a second image compiles nothing.  The alternatives' refinement is not counted
+    in the fit's evaluations."""
+    genomes, costs, ends, spread = _candidate_ends(skel, config, st, answer.genome, answer.cost)
+    costs = np.array(costs)
+    costs[1:] = np.maximum(costs[1:], costs[0])  # the answer first, whatever round-off
+    min_move = min_move * float(spread)
+    take = distinct(np.asarray(ends), costs, k, min_move)
+    take = np.asarray(take + [take[-1]] * (k - len(take)), np.int32)  # padded to k rows: one shape
+    g, f, ends, poses, links = _refined(skel, config, st, jnp.asarray(genomes)[take], jnp.asarray(costs)[take])
+    f = np.array(f)
+    f[0] = -np.inf  # the answer first; the others by cost, distinct after refinement too
+    keep = np.asarray(distinct(np.asarray(ends), np.where(np.isfinite(f), f, np.nanmin(f[1:]) - 1), k, min_move), int)
+    rows = lambda tree: jax.tree_util.tree_map(lambda x: np.asarray(x)[keep], tree)  # noqa: E731
+    first = lambda many, one: np.concatenate([np.asarray(one)[None], many[1:]])  # noqa: E731  (as the fit computed)
+    return Hypotheses(first(rows(g), answer.genome), first(np.array(f)[keep], answer.cost),
+                      jax.tree_util.tree_map(first, rows(poses), answer.pose),
+                      jax.tree_util.tree_map(first, rows(links), answer.links))
+
+
+@partial(jax.jit, static_argnames="config", compiler_options=fast_compile_options())
+def _candidate_ends(skel: Skeleton, config: FitConfig, st: SearchState, genome, cost):
+    """The answer and every island's candidates: genomes, costs, capsule ends ``(M, 2 L, 3)``, the cloud's spread."""
     genomes, costs = candidates(st)
-    genomes = jnp.concatenate([answer.genome[None], genomes])
-    costs = np.array(jnp.concatenate([jnp.reshape(answer.cost, (1,)), costs]))
-    costs[1:] = np.where(costs[1:] < costs[0], costs[0], costs[1:])  # the answer first, whatever round-off
-    links = _links(skel, st.bounds, genomes)
-    ends = np.concatenate([np.asarray(links.start), np.asarray(links.end)], axis=1)
-    scale = float(cloud_spread(st.obs.cloud))
-    take = distinct(ends, costs, k, min_move * scale)
-    g, f = genomes[np.asarray(take, int)], jnp.asarray(costs[take])
-    if len(take) > 1 and config.final_refine_steps > 0:
-        g_ref, f_ref = _refine(skel, config, st, g[1:], jnp.int32(config.final_refine_steps))
+    genomes = jnp.concatenate([genome[None], genomes])
+    costs = jnp.concatenate([jnp.reshape(cost, (1,)), costs])
+    links = jax.vmap(lambda g: forward_kinematics(skel, decode(skel, st.bounds, jnp.clip(g, 0.0, 1.0))))(genomes)
+    return genomes, costs, jnp.concatenate([links.start, links.end], axis=1), cloud_spread(st.obs.cloud)
+
+
+@partial(jax.jit, static_argnames="config", compiler_options=fast_compile_options())
+def _refined(skel: Skeleton, config: FitConfig, st: SearchState, g, f):
+    """Rows ``1..`` of ``g (k, D)`` refined as the answer was (kept where better), then every
+    row's pose, links and capsule ends."""
+    if config.final_refine_on:
+        gen = st.algo_state.generation_counter.reshape(-1)[0]
+        pop_cost = population_cost_fn(skel, config, _one_island(st))
+        g_ref, f_ref = refine(lambda G: pop_cost(lock(skel, config, st.bounds, gen, G)), g[1:],
+                              jnp.int32(config.final_refine_steps), st.params.learning_rate)
         better = f_ref < f[1:]
         g = g.at[1:].set(jnp.where(better[:, None], g_ref, g[1:]))
         f = f.at[1:].set(jnp.where(better, f_ref, f[1:]))
-        # refinement may carry two onto one optimum: keep the distinct ones, the answer first
-        f_host = np.array(f)
-        f_host[0] = np.nanmin(f_host) - 1.0
-        links = _links(skel, st.bounds, g)
-        keep = distinct(np.concatenate([np.asarray(links.start), np.asarray(links.end)], axis=1), f_host, k,
-                        min_move * scale)
-        g, f = g[np.asarray(keep, int)], f[np.asarray(keep, int)]
-    poses = jax.vmap(lambda x: decode(skel, st.bounds, x))(g)
+    poses = jax.vmap(lambda x: decode(skel, st.bounds, jnp.clip(x, 0.0, 1.0)))(g)
     links = jax.vmap(lambda p: forward_kinematics(skel, p))(poses)
-    first = lambda many, one: many.at[0].set(one)  # noqa: E731  (the answer as the fit computed it)
-    return Hypotheses(first(g, answer.genome), first(f, answer.cost), jax.tree_util.tree_map(first, poses, answer.pose),
-                      jax.tree_util.tree_map(first, links, answer.links))
-
-
-@jax.jit
-def _links(skel: Skeleton, bounds, genomes) -> Links:
-    return jax.vmap(lambda g: forward_kinematics(skel, decode(skel, bounds, jnp.clip(g, 0.0, 1.0))))(genomes)
-
-
-@partial(jax.jit, static_argnames="config")
-def _refine(skel: Skeleton, config: FitConfig, st: SearchState, genomes, steps):
-    gen = st.algo_state.generation_counter.reshape(-1)[0]
-    pop_cost = population_cost_fn(skel, config, _one_island(st))
-    return refine(lambda G: pop_cost(lock(skel, config, st.bounds, gen, G)), genomes, steps, st.params.learning_rate)
+    return g, f, jnp.concatenate([links.start, links.end], axis=1), poses, links
 
 
 def _one_island(st: SearchState) -> SearchState:

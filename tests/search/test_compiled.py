@@ -26,6 +26,7 @@ import pytest
 from search_cases import PROBE_POINTS, count_compiles, probe_cloud, probe_skeleton
 
 from jaxpose import ObjectiveConfig, decode, forward_kinematics, observe, population_cost
+from jaxpose.errors import ConfigError
 from jaxpose.kinematics import collision_pairs
 from jaxpose.search import FitConfig, Fitter, fit_cloud
 from jaxpose.search.compiled import (
@@ -212,6 +213,7 @@ def test_a_sweep_over_rates_and_weights_compiles_once():
     """Configs that differ only in traced settings (GA rates, learning rate, sigma and
     positive weights) share one compiled search, and the settings reach it."""
     skel, cloud = sweep_skeleton(), as_float32(probe_cloud(0, 80))
+    PROGRAMS.entries.clear()  # the first fit compiles, whatever ran before
     configs = [SWEEP, SWEEP_ALL, dataclasses.replace(SWEEP, mutation_rate=1.0)]
     results, compiles = [], []
     for cfg in configs:
@@ -261,3 +263,15 @@ def test_every_traced_setting_reaches_the_compiled_search():
         np.testing.assert_allclose(fitness, sweep_costs(skel, cloud, cfg.objective, st), rtol=1e-5, err_msg=name)
         if "objective" in change:  # the weight matters for this population: the check above has teeth
             assert not np.allclose(fitness, sweep_costs(skel, cloud, SWEEP.objective, st), rtol=1e-5), name
+
+
+def test_stepping_a_fitter_by_hand_is_refused_clearly_when_misused():
+    skel = probe_skeleton()
+    fitter = Fitter(skel, config())
+    with pytest.raises(RuntimeError, match="call init"):
+        fitter.finish(None, None)
+    st = fitter.init(probe_cloud(0, 80), jax.random.key(0))
+    with pytest.raises(ConfigError, match="epochs are"):
+        fitter.step(st, fitter.epoch_lengths[0] + 1)
+    with pytest.raises(ConfigError, match="static"):
+        Fitter(skel, config().static())

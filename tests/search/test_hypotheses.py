@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from search_cases import GA, N_POINTS, skeleton, spider_cloud
+from search_cases import GA, N_POINTS, count_compiles, skeleton, spider_cloud
 
 from jaxpose import cloud_spread, forward_kinematics
 from jaxpose.search import fit_cloud
@@ -63,6 +63,17 @@ def test_the_first_hypothesis_is_the_answer_and_the_others_are_distinct():
     for i in range(k):
         for j in range(i):
             assert np.max(np.linalg.norm(ends[i] - ends[j], axis=-1)) > min_move
+
+
+def test_a_second_image_compiles_nothing():
+    """The hypotheses' programs have shapes fixed by the config and K, whatever the number of
+    distinct poses an image holds."""
+    skel, other = skeleton(), spider_cloud(1)
+    fit_cloud(spider_cloud(), skel, 0, HYP, hypotheses=3)
+    with count_compiles() as names:
+        res = fit_cloud(other, skel, 1, HYP, hypotheses=3)
+    assert names == [], names
+    assert 1 <= res.hypotheses.genome.shape[0] <= 3
 
 
 def test_hypotheses_must_be_at_least_one():

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import types
 
 import numpy as np
 import pytest
-from search_cases import ISLANDS, N_POINTS, expected_counts, skeleton, spider_cloud
+from search_cases import COARSE, ISLANDS, N_POINTS, OBJ, expected_counts, skeleton, spider_cloud
 
 import jaxpose.search.compiled as compiled
 from jaxpose.errors import ConfigError
@@ -20,9 +21,9 @@ LONG = ISLANDS
 
 @pytest.fixture
 def slow_clock(monkeypatch):
-    """Every reading of the fit's clock is 10 s after the previous one."""
+    """Every reading of the fit's clock is 10 s after the previous one (the fit's clock only)."""
     ticks = itertools.count(0.0, 10.0)
-    monkeypatch.setattr(compiled.time, "perf_counter", lambda: next(ticks))
+    monkeypatch.setattr(compiled, "time", types.SimpleNamespace(perf_counter=lambda: next(ticks)))
 
 
 def test_a_budget_ends_the_search_after_the_epoch_it_runs_out_in(slow_clock):
@@ -37,6 +38,25 @@ def test_a_budget_ends_the_search_after_the_epoch_it_runs_out_in(slow_clock):
     hist = np.asarray(res.history)
     assert hist.shape == (4,) and np.all(hist[2:] == hist[1])  # the generations not run repeat the last cost
     assert np.isfinite(float(res.cost)) and float(res.cost) <= hist[1]
+
+
+def test_without_a_progress_callback_too(slow_clock):
+    res = fit_cloud(spider_cloud(), skeleton(), 0, LONG, time_budget=5.0)
+    assert int(res.objective_evaluations) == expected_counts(dataclasses.replace(LONG, generations=2))[0]
+
+
+def test_an_early_end_before_the_coarse_to_fine_switch_reports_the_cost_on_every_point(slow_clock):
+    """Coarse-to-fine scores a few blocks of points until the switch; a fit that ends before
+    it must still report (and pick its best by) the cost on every point."""
+    from jaxpose import collision_pairs, observe, population_cost
+
+    cloud, skel = spider_cloud(), skeleton()
+    res = fit_cloud(cloud, skel, 0, COARSE, time_budget=5.0)
+    assert int(res.objective_evaluations) < expected_counts(COARSE)[0]  # it did end early
+    pairs = collision_pairs(skel, OBJ.collision_margin)
+    lk = res.links
+    want = population_cost(observe(cloud, OBJ), lk.start[None], lk.end[None], lk.radius[None], OBJ, None, pairs)[0]
+    np.testing.assert_allclose(float(res.cost), float(want), rtol=1e-5)
 
 
 def test_a_generous_budget_changes_nothing():
