@@ -22,9 +22,7 @@ from ..kinematics import Links, forward_kinematics
 from ..objective import cloud_spread
 from ..skeleton import Pose, Skeleton
 from .config import FitConfig
-from .cost import population_cost_fn
-from .genes import lock
-from .refine import refine
+from .memetic import refine_rows
 from .state import SearchState
 
 # Two poses are alike unless some capsule end moves by more than this fraction of the
@@ -106,18 +104,10 @@ def _refined(skel: Skeleton, config: FitConfig, st: SearchState, g, f):
     """Rows ``1..`` of ``g (k, D)`` refined as the answer was (kept where better), then every
     row's pose, links and capsule ends."""
     if config.final_refine_on:
-        gen = st.algo_state.generation_counter.reshape(-1)[0]
-        pop_cost = population_cost_fn(skel, config, _one_island(st))
-        g_ref, f_ref = refine(lambda G: pop_cost(lock(skel, config, st.bounds, gen, G)), g[1:],
-                              jnp.int32(config.final_refine_steps), st.params.learning_rate)
+        g_ref, f_ref = refine_rows(skel, config, st, g[1:], jnp.int32(config.final_refine_steps))
         better = f_ref < f[1:]
         g = g.at[1:].set(jnp.where(better[:, None], g_ref, g[1:]))
         f = f.at[1:].set(jnp.where(better, f_ref, f[1:]))
     poses = jax.vmap(lambda x: decode(skel, st.bounds, jnp.clip(x, 0.0, 1.0)))(g)
     links = jax.vmap(lambda p: forward_kinematics(skel, p))(poses)
     return g, f, jnp.concatenate([links.start, links.end], axis=1), poses, links
-
-
-def _one_island(st: SearchState) -> SearchState:
-    """``st`` with only what the cost reads (the shared fields), whatever its island axis."""
-    return st._replace(algo_state=None, key=None, objective_evaluations=None, gradient_evaluations=None, initial=None)

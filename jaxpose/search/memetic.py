@@ -38,12 +38,16 @@ def refine_top(skel: Skeleton, config: FitConfig, st: SearchState, m: int, steps
     """
     pick = partial(candidates, config, m)
     order, cand = pick(st.algo_state) if config.islands == 1 else jax.vmap(pick)(st.algo_state)
-    gen = st.algo_state.generation_counter.reshape(-1)[0]
-    D = cand.shape[-1]
-    pop_cost = population_cost_fn(skel, config, st)
-    g, f = refine(lambda G: pop_cost(lock(skel, config, st.bounds, gen, G)), cand.reshape(-1, D), steps,
-                  st.params.learning_rate)
+    g, f = refine_rows(skel, config, st, cand.reshape(-1, cand.shape[-1]), steps)
     return order, g.reshape(cand.shape), f.reshape(cand.shape[:-1])
+
+
+def refine_rows(skel: Skeleton, config: FitConfig, st: SearchState, rows, steps):
+    """Adam-refine genomes ``rows (m, D)`` on ``st``'s cloud with its traced settings; genes
+    locked at the current generation stay locked.  Returns the best iterates and their costs."""
+    gen = st.algo_state.generation_counter.reshape(-1)[0]
+    pop_cost = population_cost_fn(skel, config, st)
+    return refine(lambda G: pop_cost(lock(skel, config, st.bounds, gen, G)), rows, steps, st.params.learning_rate)
 
 
 def keep_better(g, f, best_g, best_f):
