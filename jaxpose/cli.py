@@ -14,12 +14,25 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import pkgutil
 import sys
 
 from . import __version__
 from .errors import JaxposeError
 
-SUBCOMMANDS = ("fit", "render", "eval", "skeleton")
+# The order of ``jaxpose --help``; a module of jaxpose.commands with a ``register``
+# function is a subcommand, so a new command is one new file.
+_HELP_ORDER = ("fit", "track", "render", "eval", "view", "skeleton")
+
+
+def _subcommands() -> tuple[str, ...]:
+    from . import commands
+
+    found = [m.name for m in pkgutil.iter_modules(commands.__path__)
+             if hasattr(importlib.import_module(f"jaxpose.commands.{m.name}"), "register")]
+    rank = {name: i for i, name in enumerate(_HELP_ORDER)}
+    return tuple(sorted(found, key=lambda n: (rank.get(n, len(rank)), n)))
+
 
 
 class _Parser(argparse.ArgumentParser):
@@ -40,7 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"jaxpose {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in SUBCOMMANDS:
+    for name in _subcommands():
         importlib.import_module(f"jaxpose.commands.{name}").register(sub)
     return parser
 
@@ -81,7 +94,7 @@ def main(argv=None) -> int:
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
     if not getattr(args, "func", None):
         parser.print_help()
-        print(f"jaxpose: error: no command given (one of {', '.join(SUBCOMMANDS)})", file=sys.stderr)
+        print(f"jaxpose: error: no command given (one of {', '.join(_subcommands())})", file=sys.stderr)
         return 2
     enable_compilation_cache()
     try:
