@@ -541,9 +541,9 @@ def markdown(summary: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def stored_records(sets, count: int, seed: int = 0) -> list[dict]:
-    """The stored diagnoses of the first ``count`` tuning images of ``sets`` whatever code made them
-    (the newest per image), to summarise a run without fitting again."""
+def stored_records(sets, count: int, seed: int = 0, draw: str = "tuning") -> list[dict]:
+    """The stored diagnoses of the first ``count`` images of ``sets``' ``draw`` whatever code made
+    them (the newest per image), to summarise a run without fitting again."""
     import glob
 
     newest: dict = {}
@@ -551,37 +551,56 @@ def stored_records(sets, count: int, seed: int = 0) -> list[dict]:
         with open(path) as f:
             rec = json.load(f)
         name = rec["set"].rsplit("-", 1)[0]
-        if name in sets and rec["set"].endswith("-tuning") and rec["seed"] == seed:
+        if name in sets and rec["set"].endswith(f"-{draw}") and rec["seed"] == seed:
             newest[(name, rec["image"])] = rec
     return [newest[(s, f"{s}{i:03d}")] for i in range(count) for s in sets if (s, f"{s}{i:03d}") in newest]
 
 
-def write_summary(records: list[dict], config, seed: int, out_dir: str = OUT_DIR) -> dict:
+def summary_name(draw: str, config) -> str:
+    """The summary's file stem: ``diagnosis`` (tuning draw, default config), else the draw and
+    the settings that differ from the default (``reference``, ``tuning-islands=64``, ...)."""
+    from jaxpose.search import FitConfig
+
+    def flat(c):
+        d = c.to_dict()
+        return {**{k: v for k, v in d.items() if k not in ("objective", "generations")},
+                **{f"objective.{k}": v for k, v in d["objective"].items()}}
+
+    default, now = flat(FitConfig()), flat(config)
+    changed = [f"{k}={v}" for k, v in sorted(now.items()) if default.get(k) != v]
+    stem = "diagnosis" if draw == "tuning" else draw
+    return "-".join([stem, *changed]) if changed else stem
+
+
+def write_summary(records: list[dict], config, seed: int, out_dir: str = OUT_DIR, draw: str = "tuning") -> dict:
     import common
     from outputs import write_text
 
     summary = summarise(records)
     os.makedirs(out_dir, exist_ok=True)
-    common.write_json(os.path.join(out_dir, "diagnosis.json"),
+    stem = summary_name(draw, config)
+    common.write_json(os.path.join(out_dir, f"{stem}.json"),
                       {"machine": common.machine_info(), "config": config.to_dict(), "seed": seed,
                        "cost_margin": COST_MARGIN, "visible": VISIBLE, "penetration_m": PENETRATION,
                        "summary": summary, "records": records})
-    write_text(os.path.join(out_dir, "diagnosis.md"), markdown(summary))
+    write_text(os.path.join(out_dir, f"{stem}.md"), markdown(summary))
     return summary
 
 
-def diagnose(sets, count: int, seed: int = 0, data_dir: str = DATA_DIR, out_dir: str = OUT_DIR) -> dict:
-    """Fit and diagnose the first ``count`` tuning images of every set, interleaved (so that an
-    interrupted run has as many of each); stored fits are reused."""
+def diagnose(sets, count: int, seed: int = 0, data_dir: str = DATA_DIR, out_dir: str = OUT_DIR,
+             draw: str = "tuning", config=None) -> dict:
+    """Fit and diagnose the first ``count`` images of every set's ``draw`` with ``config``
+    (default ``FitConfig()``), interleaved (so that an interrupted run has as many of each);
+    stored fits are reused."""
     import common
     from machine import machine_id
     from outputs import log
 
     from jaxpose.search import FitConfig
 
-    config = FitConfig()
+    config = FitConfig() if config is None else config
     store = common.RunStore(RUNS_DIR)
-    data = {s: load_set(s, "tuning", data_dir) for s in sets}
+    data = {s: load_set(s, draw, data_dir) for s in sets}
     records = []
     for i in range(count):
         for ds in data.values():
@@ -601,14 +620,41 @@ def diagnose(sets, count: int, seed: int = 0, data_dir: str = DATA_DIR, out_dir:
                     f"{rec['truth_cost']:.4f} -> {rec['verdict'] or 'placed'}  {rec['wall_seconds']:.1f} s  "
                     f"{' '.join(lost)}")
             records.append(rec)
-    return write_summary(records, config, seed, out_dir)
+    return write_summary(records, config, seed, out_dir, draw)
+
+
+def parse_settings(items) -> dict:
+    """``["islands=64", "objective.collision_weight=0"]`` -> FitConfig overrides (values as JSON)."""
+    out: dict = {}
+    for item in items or ():
+        name, _, value = item.partition("=")
+        try:
+            out[name] = json.loads(value)
+        except json.JSONDecodeError:
+            out[name] = value
+    return out
+
+
+def config_with(settings: dict):
+    """``FitConfig()`` with ``settings`` (``objective.<name>`` for the cost's settings)."""
+    import dataclasses
+
+    from jaxpose.search import FitConfig
+
+    top = {k: tuple(v) if isinstance(v, list) else v for k, v in settings.items() if "." not in k}
+    obj = {k.split(".", 1)[1]: v for k, v in settings.items() if k.startswith("objective.")}
+    config = dataclasses.replace(FitConfig(), **top)
+    return dataclasses.replace(config, objective=dataclasses.replace(config.objective, **obj)).validate()
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sets", nargs="+", default=list(SETS), choices=SETS)
     ap.add_argument("--images", type=int, default=32, help="images per set and draw (default 32)")
-    ap.add_argument("--diagnose", type=int, default=16, help="tuning images per set to fit and diagnose (0: none)")
+    ap.add_argument("--diagnose", type=int, default=16, help="images per set to fit and diagnose (0: none)")
+    ap.add_argument("--draw", default="tuning", choices=list(DRAWS), help="the draw to diagnose (default tuning)")
+    ap.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
+                    help="a FitConfig setting for the fits (repeatable; objective.NAME for the cost's)")
     ap.add_argument("--seed", type=int, default=0, help="the fits' seed (default 0)")
     ap.add_argument("--data", default=DATA_DIR, help="folder of the sets (default data/hard_poses)")
     ap.add_argument("--out", default=OUT_DIR, help="folder of the diagnosis' summary")
@@ -619,8 +665,8 @@ def main(argv=None) -> int:
     if args.from_store:
         from jaxpose.search import FitConfig
 
-        print(markdown(write_summary(stored_records(args.sets, args.diagnose, args.seed), FitConfig(), args.seed,
-                                     args.out)))
+        print(markdown(write_summary(stored_records(args.sets, args.diagnose, args.seed, args.draw), FitConfig(),
+                                     args.seed, args.out, args.draw)))
         return 0
     sets = list(args.sets)
     if "mujoco" in sets:
@@ -641,7 +687,8 @@ def main(argv=None) -> int:
             if args.rerender or have < args.images:
                 write_set(s, draw, args.images, args.data)
     if args.diagnose > 0 and sets:
-        summary = diagnose(sets, args.diagnose, args.seed, args.data, args.out)
+        summary = diagnose(sets, args.diagnose, args.seed, args.data, args.out, args.draw,
+                           config_with(parse_settings(args.settings)))
         print(markdown(summary))
     return 0
 
