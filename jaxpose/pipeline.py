@@ -299,7 +299,7 @@ def fit_file(
             f"{path}: the fit of {skel.name!r} ended with a non-finite cost or pose; "
             "check the skeleton's ranges and the depth scale"
         )
-    doc = result_document(skel, skel_file, result, config, seed, inputs)
+    doc = result_document(skel, skel_file, result, config, seed, inputs, cloud)
     if frame:
         doc["frame"] = frame
     doc["skeleton"]["search_lengths"] = bool(search_lengths)

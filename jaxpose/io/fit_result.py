@@ -72,8 +72,20 @@ def hypotheses_table(skel: Skeleton, hyp) -> list[dict]:
     return out
 
 
-def result_document(skel: Skeleton, skeleton_file: str | None, result, config, seed: int, inputs: dict) -> dict:
-    """Assemble the JSON document of one fit (plain Python types)."""
+POINTS_DECIMALS = 4  # the points used are recorded to 0.1 mm
+
+
+def points_table(cloud) -> list[list[float]]:
+    """The points a fit used (the cloud's points of positive weight, padding left out), in
+    metres rounded to :data:`POINTS_DECIMALS` places: what ``jaxpose view`` shows."""
+    pts = np.asarray(cloud.points, np.float64)[np.asarray(cloud.weights) > 0]
+    return np.round(pts, POINTS_DECIMALS).tolist()
+
+
+def result_document(skel: Skeleton, skeleton_file: str | None, result, config, seed: int, inputs: dict,
+                    cloud=None) -> dict:
+    """Assemble the JSON document of one fit (plain Python types); with ``cloud``, the
+    points used under ``"points"`` (:func:`points_table`)."""
     return {
         "schema": SCHEMA_VERSION,
         "skeleton": {
@@ -96,6 +108,7 @@ def result_document(skel: Skeleton, skeleton_file: str | None, result, config, s
             "point_to_capsule_distances": float(result.distance_evaluations),
         },
         **({"hypotheses": hypotheses_table(skel, result.hypotheses)} if result.hypotheses is not None else {}),
+        **({"points": points_table(cloud)} if cloud is not None else {}),
         "versions": package_versions(),
         "timing": {"wall_seconds": float(result.wall_time)},
     }
