@@ -72,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
     if args.screenshot and not 0 <= args.frame < len(view.frames):
         raise ConfigError(f"--frame {args.frame}: {args.result} has frames 0 .. {len(view.frames) - 1}")
     require_viser()
+    if args.screenshot:
+        from ..viewer.app import find_chromium
+
+        find_chromium()  # before the server starts
     for note in view.notes:
         print(f"jaxpose: note: {note}", file=sys.stderr, flush=True)
     if args.screenshot:

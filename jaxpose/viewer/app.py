@@ -58,6 +58,7 @@ class Viewer:
         self.server.scene.set_up_direction("-y")  # the sensor's image: y down
         self.index = 0
         self.playing = False
+        self._stopped = threading.Event()
         self._lock = threading.RLock()
         self.nodes: dict[str, object] = {}
         self._gui(point_size)
@@ -106,12 +107,11 @@ class Viewer:
             box.on_update(lambda _: self.show(self.index))
 
     def _play_loop(self) -> None:
-        while True:
-            time.sleep(1.0 / max(float(self.fps.value), 0.1))
+        while not self._stopped.wait(1.0 / max(float(self.fps.value), 0.1)):
             if self.playing:
                 nxt = (self.index + 1) % len(self.view.frames)
-                self.show(nxt)
                 self.slider.value = nxt
+                self.show(nxt)
 
     # ------------------------------------------------------------------ scene
 
@@ -171,6 +171,9 @@ class Viewer:
         return f"http://{shown}:{self.server.get_port()}"
 
     def stop(self) -> None:
+        self._stopped.set()
+        if self._player is not None:
+            self._player.join()
         with quiet():
             self.server.stop()
 
@@ -178,16 +181,20 @@ class Viewer:
 # --------------------------------------------------------------------------- screenshots
 
 
-def find_chromium() -> str | None:
-    """A Chromium or Chrome executable: ``$JAXPOSE_CHROMIUM``, else the first on ``PATH``."""
+def find_chromium() -> str:
+    """A Chromium or Chrome executable: ``$JAXPOSE_CHROMIUM``, else the first on ``PATH``;
+    :class:`ConfigError` when there is none."""
     env = os.environ.get("JAXPOSE_CHROMIUM")
     if env:
-        return env if os.path.isfile(env) and os.access(env, os.X_OK) else None
+        if os.path.isfile(env) and os.access(env, os.X_OK):
+            return env
+        raise ConfigError(f"JAXPOSE_CHROMIUM {env}: not an executable file (--screenshot needs Chromium or Chrome)")
     for name in CHROMIUM_NAMES:
         found = shutil.which(name)
         if found:
             return found
-    return None
+    raise ConfigError("--screenshot needs Chromium or Chrome (none on PATH; install one, or set JAXPOSE_CHROMIUM "
+                      "to its executable)")
 
 
 CHROMIUM_FLAGS = (
@@ -264,9 +271,6 @@ def screenshot(view: View, path: str, width: int = 960, height: int = 720, azimu
     from ..io.atomic import atomic_write
 
     exe = chromium or find_chromium()
-    if exe is None:
-        raise ConfigError("--screenshot needs Chromium or Chrome (none on PATH; "
-                          "set JAXPOSE_CHROMIUM to the browser's executable)")
     viewer = Viewer(view, host="127.0.0.1", port=0)
     try:
         viewer.show_joints.value = show_joints
