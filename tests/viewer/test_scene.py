@@ -196,3 +196,12 @@ def test_results_in_a_folder_keep_their_own_paths(tmp_path):
     path = write(tmp_path / "a" / "r.json", demo_result(points=False))
     view = load_view(path)  # found beside the result, not in the working folder
     assert view.frames[0].points is not None
+
+
+def test_a_result_records_the_points_used_without_the_padding():
+    from jaxpose.io.fit_result import points_table
+    from jaxpose.objective import Cloud
+
+    pts = np.array([[0.123456, -1.0, 2.0], [9.0, 9.0, 9.0], [0.5, 0.25, 1.00004]])
+    table = points_table(Cloud(pts, np.array([1.0, 0.0, 1.0])))
+    assert table == [[0.1235, -1.0, 2.0], [0.5, 0.25, 1.0]]  # 0.1 mm; the weight-0 padding left out
