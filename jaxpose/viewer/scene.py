@@ -118,12 +118,16 @@ def _intrinsics(doc: dict) -> Intrinsics | None:
         return None
 
 
-def _find(name: str, sha256: str | None, result_path: str) -> tuple[str | None, str | None]:
-    """An input recorded by ``name`` and hash: beside the result, else in the working folder.
+def _find(name: str, sha256: str | None, result_path: str, hint: str | None = None) -> tuple[str | None, str | None]:
+    """An input recorded by ``name`` and hash: beside the result, else in the working folder,
+    else at ``hint`` (a sequence's ``track.json`` entry: as given, or from the result's folder).
     Returns ``(path, None)`` or ``(None, why not)``."""
     from ..io.fit_result import file_sha256
 
-    places = [os.path.join(os.path.dirname(os.path.abspath(result_path)), name), os.path.abspath(name)]
+    here = os.path.dirname(os.path.abspath(result_path))
+    places = [os.path.join(here, name), os.path.abspath(name)]
+    if hint and os.path.basename(hint) == name:
+        places += [os.path.abspath(hint), os.path.join(here, hint)]
     changed = None
     for p in dict.fromkeys(places):
         if os.path.isfile(p):
@@ -135,7 +139,7 @@ def _find(name: str, sha256: str | None, result_path: str) -> tuple[str | None, 
     return None, f"{name} is neither beside the result nor in the working folder"
 
 
-def rebuild_points(path: str, doc: dict) -> tuple[np.ndarray | None, str | None]:
+def rebuild_points(path: str, doc: dict, hint: str | None = None) -> tuple[np.ndarray | None, str | None]:
     """The points of a result that does not store them (written before ``points`` was
     recorded, or by another tool), rebuilt from its input file with the recorded options:
     ``(points, None)``, or ``(None, why not)`` when the input is not found, differs from
@@ -150,19 +154,20 @@ def rebuild_points(path: str, doc: dict) -> tuple[np.ndarray | None, str | None]
               if k in inp}
     try:
         if isinstance(inp.get("cloud"), str):
-            src, why = _find(inp["cloud"], inp.get("cloud_sha256"), path)
+            src, why = _find(inp["cloud"], inp.get("cloud_sha256"), path, hint)
             if src is None:
                 return None, why
             options = InputOptions(cloud_scale=float(inp.get("cloud_scale", 1.0)),
                                    viewpoint=tuple(inp["viewpoint"]) if inp.get("viewpoint") else None, **common)
             cloud = load_cloud_observation(src, options)[2]
         elif isinstance(inp.get("depth"), str):
-            src, why = _find(inp["depth"], inp.get("depth_sha256"), path)
+            src, why = _find(inp["depth"], inp.get("depth_sha256"), path, hint)
             if src is None:
                 return None, why
             background = None
             if isinstance(inp.get("background"), str):
-                background, why = _find(inp["background"], inp.get("background_sha256"), path)
+                background, why = _find(inp["background"], inp.get("background_sha256"), path,
+                                        hint and os.path.join(os.path.dirname(hint), inp["background"]))
                 if background is None:
                     return None, f"background {why}"
             k = _intrinsics(doc) or KINECT_V1
@@ -177,13 +182,14 @@ def rebuild_points(path: str, doc: dict) -> tuple[np.ndarray | None, str | None]
     return pts, None
 
 
-def read_frame(path: str, doc: dict | None = None) -> Frame:
-    """One result file as a :class:`Frame` (its points stored, else rebuilt from its input)."""
+def read_frame(path: str, doc: dict | None = None, hint: str | None = None) -> Frame:
+    """One result file as a :class:`Frame` (its points stored, else rebuilt from its input;
+    ``hint``: where else the input may be, :func:`rebuild_points`)."""
     doc = _load_json(path) if doc is None else doc
     links = _links(path, doc)
     points, note = _stored_points(path, doc), None
     if points is None:
-        points, why = rebuild_points(path, doc)
+        points, why = rebuild_points(path, doc, hint)
         if points is None:
             note = f"{path}: no points shown: the result does not store them and {why}; showing the model alone"
     cost = doc.get("cost")
@@ -222,7 +228,7 @@ def read_sequence(folder: str) -> View:
         path = os.path.join(folder, stem + ".json")
         if not os.path.isfile(path):
             raise TruthError(f"{track}: the result of frame #{i + 1} ({e['input']}), {path}, is missing")
-        f = read_frame(path)
+        f = read_frame(path, hint=e["input"])
         f.frame = _number(e.get("frame", i), "'frame'", track, integer=True)
         mode = e.get("mode", f.mode)
         if mode is not None and mode not in MODES:

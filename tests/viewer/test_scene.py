@@ -205,3 +205,16 @@ def test_a_result_records_the_points_used_without_the_padding():
     pts = np.array([[0.123456, -1.0, 2.0], [9.0, 9.0, 9.0], [0.5, 0.25, 1.00004]])
     table = points_table(Cloud(pts, np.array([1.0, 0.0, 1.0])))
     assert table == [[0.1235, -1.0, 2.0], [0.5, 0.25, 1.0]]  # 0.1 mm; the weight-0 padding left out
+
+
+def test_a_tracked_frame_without_points_finds_its_input_from_track_json(tmp_path, monkeypatch):
+    os.makedirs(tmp_path / "frames")
+    copy_inputs(tmp_path / "frames")
+    os.makedirs(tmp_path / "seq")
+    write(tmp_path / "seq" / "spider_demo.json", demo_result(points=False))
+    write(tmp_path / "seq" / "track.json", {"frames": [{"input": "frames/spider_demo.png", "mode": "global"}]})
+    monkeypatch.chdir(tmp_path)  # where the track command ran
+    view = load_view("seq")
+    np.testing.assert_allclose(view.frames[0].points, demo_points(), atol=1e-6)
+    monkeypatch.chdir(tmp_path / "seq")  # elsewhere: not found, said in one line
+    assert load_view(".").frames[0].points is None
