@@ -74,8 +74,8 @@ def compile_search(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConf
             low = generations_jit.lower(skel, config, st, length=n)
             gens[n], hist[n] = pool.submit(low.compile), low.out_info[1]
         steps = jax.ShapeDtypeStruct((), jnp.int32)
-        counts = ([config.memetic_count] if config.memetic_on else []) + (
-            [config.final_count] if config.final_refine_on else [])
+        counts = ([config.memetic_rows] if config.memetic_on else []) + (
+            [config.final_rows] if config.final_refine_on else [])
         refine, refined = {}, {}
         for m in sorted(set(counts)):
             low = refine_jit.lower(skel, config, st, m, steps)
@@ -83,9 +83,9 @@ def compile_search(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConf
         apply = {}
         if config.memetic_on:
             for n in lengths:
-                low = memetic_apply_jit.lower(skel, config, st, refined[config.memetic_count], hist[n])
+                low = memetic_apply_jit.lower(skel, config, st, refined[config.memetic_rows], hist[n])
                 apply[n] = pool.submit(low.compile)
-        final = refined[config.final_count] if config.final_refine_on else None
+        final = refined[config.final_rows] if config.final_refine_on else None
         history = jax.ShapeDtypeStruct((config.generations,), jnp.float32)
         result = pool.submit(result_jit.lower(cloud, skel, config, st, history, final).compile)
         done = lambda d: {k: f.result() for k, f in d.items()}  # noqa: E731

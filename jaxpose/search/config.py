@@ -99,6 +99,14 @@ class FitConfig:
     ``memetic_steps`` Adam steps."""
     memetic_steps: int = 10
     """Adam steps of the memetic step (0: no memetic step)."""
+    memetic_hops: int = 0
+    """Limb hops (GA only): in every memetic step each island also refines this many
+    copies of its best in which one random subtree's joint angles (or the root's
+    orientation) are drawn anew; they replace the island's worst individuals, so a
+    limb caught in a wrong basin can jump to another and settle there (docs/search.md,
+    "Limb hops")."""
+    final_hops: int = 0
+    """Limb hops of each island's best in the final refinement (as ``memetic_hops``)."""
     final_refine_top: int = 4
     """How many best individuals of the GA take ``final_refine_steps`` Adam steps at
     the end (other algorithms: their best point)."""
@@ -176,7 +184,8 @@ class FitConfig:
             raise ConfigError(f"coarse_points works with the GA (algorithm 'ga') only, not {self.algorithm!r}")
         if not isinstance(self.tie_lengths, bool):
             raise ConfigError(f"tie_lengths must be true or false, got {self.tie_lengths!r}")
-        for name in ("memetic_top", "memetic_steps", "final_refine_top", "final_refine_steps"):
+        for name in ("memetic_top", "memetic_steps", "memetic_hops", "final_hops", "final_refine_top",
+                     "final_refine_steps"):
             require_integer(name, getattr(self, name), 0)
         self.objective.validate()
         return self
@@ -205,6 +214,19 @@ class FitConfig:
     def final_count(self) -> int:
         """Individuals each island refines at the end."""
         return min(self.final_refine_top, self.population) if self.algorithm == "ga" else 1
+
+    @property
+    def memetic_rows(self) -> tuple[int, int]:
+        """What each island refines in a memetic step: ``(best individuals, limb hops)``;
+        the hops replace the worst individuals, so together they fit in the population."""
+        top = self.memetic_count
+        return top, min(self.memetic_hops, self.population - top)
+
+    @property
+    def final_rows(self) -> tuple[int, int]:
+        """What each island refines at the end: ``(best individuals, limb hops)``."""
+        top = self.final_count
+        return top, (min(self.final_hops, self.population - top) if self.algorithm == "ga" else 0)
 
     @property
     def epoch_lengths(self) -> tuple[int, ...]:

@@ -164,7 +164,7 @@ def search_epoch(skel: Skeleton, config: FitConfig, st: SearchState, length: int
     the new state and the best cost (over all islands) after each generation."""
     st, hist = steps.generations(skel, config, st, length)
     if config.memetic_on:
-        refined = steps.refine(skel, config, st, config.memetic_count, jnp.int32(config.memetic_steps))
+        refined = steps.refine(skel, config, st, config.memetic_rows, jnp.int32(config.memetic_steps))
         st, hist = steps.apply(skel, config, st, refined, hist)
     return st, hist
 

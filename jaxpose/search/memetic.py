@@ -7,37 +7,67 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from ..genome import genome_layout
 from ..skeleton import Skeleton
 from .config import FitConfig
 from .cost import population_cost_fn
+from .ga import subtree_masks
 from .genes import lock
 from .islands import per_island
 from .refine import refine
 from .state import SearchState
 
 
-def candidates(config: FitConfig, m: int, state):
-    """The ``m`` fittest of the GA's population (``order``: their rows), or the best
-    point of the other algorithms."""
+def hop_masks(skel: Skeleton) -> np.ndarray:
+    """``(L + 1, D)`` boolean: the joint-angle genes of every link's subtree, and last
+    the root's orientation genes: what one limb hop draws anew."""
+    names = genome_layout(skel).names
+    angle = np.array([".q" in n for n in names])
+    root = np.array([n in ("root_roll", "root_pitch", "root_yaw") for n in names])
+    return np.concatenate([subtree_masks(skel) & angle[None], root[None]])
+
+
+def limb_hops(skel: Skeleton, key, genome, n: int):
+    """``n`` copies of ``genome (D,)``, each with one random entry of :func:`hop_masks`
+    drawn anew, uniformly within the genes' bounds."""
+    masks = jnp.asarray(hop_masks(skel))
+    k_pick, k_draw = jax.random.split(key)
+    which = jax.random.randint(k_pick, (n,), 0, masks.shape[0])
+    fresh = jax.random.uniform(k_draw, (n, genome.shape[-1]), genome.dtype)
+    return jnp.where(masks[which], fresh, genome[None])
+
+
+def candidates(skel: Skeleton, config: FitConfig, rows: int | tuple[int, int], state, key):
+    """What an island refines, ``rows = (m, hops)`` (or ``m``: no hops): the ``m`` fittest of the GA's
+    population and ``hops`` limb hops of its best (:func:`limb_hops`) that will take
+    the places of the worst; ``order``: the rows they go to.  Other algorithms: their
+    best point."""
+    m, hops = rows if isinstance(rows, tuple) else (rows, 0)
     if config.algorithm == "ga":  # elitism keeps the best in the population
-        order = jnp.argsort(state.fitness)[:m]
-        return order, state.population[order]
+        ranked = jnp.argsort(state.fitness)
+        order, cand = ranked[:m], state.population[ranked[:m]]
+        if hops:
+            hop_key = jax.random.fold_in(key, state.generation_counter)  # the island's stream is left alone
+            order = jnp.concatenate([order, ranked[::-1][:hops]])
+            cand = jnp.concatenate([cand, limb_hops(skel, hop_key, state.best_solution, hops)])
+        return order, cand
     return jnp.zeros((1,), jnp.int32), state.best_solution[None]
 
 
-def refine_top(skel: Skeleton, config: FitConfig, st: SearchState, m: int, steps):
-    """Adam-refine every island's ``m`` best candidates (:func:`candidates`).  Returns
-    ``(order, genomes, costs)`` (``order``: the candidates' rows in the population),
-    with a leading island axis when there are islands.
+def refine_top(skel: Skeleton, config: FitConfig, st: SearchState, m: int | tuple[int, int], steps):
+    """Adam-refine every island's candidates (:func:`candidates`, ``m = (best, hops)`` or ``best``).
+    Returns ``(order, genomes, costs)`` (``order``: the candidates' rows in the
+    population), with a leading island axis when there are islands.
 
     The islands' candidates are refined as one batch (every row's refinement is its
     own; the cloud is the same).  Genes locked at the current generation stay
     locked.  ``steps`` is traced, so the memetic step and the final refinement share
     one compiled program when they refine as many candidates.
     """
-    pick = partial(candidates, config, m)
-    order, cand = pick(st.algo_state) if config.islands == 1 else jax.vmap(pick)(st.algo_state)
+    pick = partial(candidates, skel, config, m)
+    order, cand = pick(st.algo_state, st.key) if config.islands == 1 else jax.vmap(pick)(st.algo_state, st.key)
     g, f = refine_rows(skel, config, st, cand.reshape(-1, cand.shape[-1]), steps)
     return order, g.reshape(cand.shape), f.reshape(cand.shape[:-1])
 
@@ -83,5 +113,5 @@ def final_refine(skel: Skeleton, config: FitConfig, st: SearchState, refine_fn=r
     """The final refinement's candidates refined (``refine_fn``: :func:`refine_top` or
     its compiled program), or ``None`` when it is off."""
     if config.final_refine_on:
-        return refine_fn(skel, config, st, config.final_count, jnp.int32(config.final_refine_steps))
+        return refine_fn(skel, config, st, config.final_rows, jnp.int32(config.final_refine_steps))
     return None
