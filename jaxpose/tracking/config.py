@@ -1,0 +1,98 @@
+"""The tracker's settings (:class:`TrackConfig`, static: one compiled step each).
+
+Why each default is what it is: docs/tracking.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from ..errors import ConfigError, require_finite, require_integer
+from ..search import FitConfig
+from ..skeleton import Skeleton
+
+
+@dataclass(frozen=True)
+class TrackConfig:
+    """Tracking settings (hashable), each documented below its field."""
+
+    fit: FitConfig = field(default_factory=FitConfig)
+    """The global search: frame 0, the first frame after a lost one, and recovery.
+    Its objective (and traced weights) also score the tracked frames."""
+    population: int = 32
+    """Individuals per generation of the local search around the prediction."""
+    generations: int = 4
+    """Generations of the local search (the first evaluates the population sampled
+    around the prediction)."""
+    std: float = 0.02
+    """The local search's mutation step at its start (genome units of the local
+    bounds), decayed to ``std_final``."""
+    std_final: float = 0.005
+    """The local search's mutation step at its end."""
+    branch_reset_rate: float = 0.02
+    """Probability that a child of the local search draws one subtree anew (a limb
+    jumping to another place)."""
+    refine_top: int = 2
+    """How many of the local search's best individuals take ``refine_steps`` Adam steps."""
+    refine_steps: int = 15
+    """Adam steps that finish a tracked frame (0: none)."""
+    learning_rate: float = 0.005
+    """Adam learning rate of the tracked frames' refinement (genome units)."""
+    prior: float = 0.003
+    """Weight of the motion prior added to the objective in the local search: the
+    mean over genes of ``ln(1 + (d / std)^2)``, ``d`` a gene's distance from the
+    prediction (a limb the camera does not see stays where the motion model puts
+    it, yet may jump where the points show it; 0: off)."""
+    velocity: float = 0.5
+    """Constant-velocity motion model: the next pose is the last one plus this times
+    the last frame's change (0: the last pose)."""
+    turn: float = 0.5
+    """Largest change of the root's orientation searched in one frame (radians about
+    each axis, around the prediction)."""
+    move: float = 0.25
+    """Largest change of the root's position searched in one frame (metres times the
+    tracked scale, around the prediction)."""
+    scale_window: float = 1.05
+    """A tracked frame's scale stays within this factor of the last one."""
+    min_points: int = 50
+    """A frame with fewer points than this is lost: the subject is not in view."""
+    loss_ratio: float = 1.6
+    """A tracked frame whose cost exceeds this times the recent cost (an average over
+    the last frames, ``cost_memory``) has lost the subject: the global search runs."""
+    cost_memory: float = 0.8
+    """Weight of the past in the recent cost (an exponential moving average)."""
+
+    def validate(self) -> "TrackConfig":
+        """Raise :class:`ConfigError` naming the first impossible setting; return ``self``."""
+        self.fit.validate()
+        require_integer("population", self.population, 2)
+        require_integer("generations", self.generations, 1)
+        require_integer("refine_top", self.refine_top, 0)
+        require_integer("refine_steps", self.refine_steps, 0)
+        require_integer("min_points", self.min_points, 1)
+        for name in ("std", "std_final", "learning_rate", "turn", "move"):
+            if not require_finite(name, getattr(self, name)) > 0:
+                raise ConfigError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if not require_finite("prior", self.prior) >= 0:
+            raise ConfigError(f"prior must be >= 0, got {self.prior!r}")
+        for name in ("velocity", "branch_reset_rate", "cost_memory"):
+            v = require_finite(name, getattr(self, name))
+            if not 0.0 <= v <= 1.0 or (name == "cost_memory" and v == 1.0):
+                raise ConfigError(f"{name} must lie in [0, 1{')' if name == 'cost_memory' else ']'}, got {v!r}")
+        if not require_finite("scale_window", self.scale_window) >= 1.0:
+            raise ConfigError(f"scale_window must be >= 1, got {self.scale_window!r}")
+        if not require_finite("loss_ratio", self.loss_ratio) > 1.0:
+            raise ConfigError(f"loss_ratio must be > 1, got {self.loss_ratio!r}")
+        return self
+
+    def for_skeleton(self, skel: Skeleton) -> "TrackConfig":
+        """This config with the global search's generations resolved for ``skel``."""
+        return dataclasses.replace(self, fit=self.fit.for_skeleton(skel))
+
+    @property
+    def refine_count(self) -> int:
+        return min(self.refine_top, self.population)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)

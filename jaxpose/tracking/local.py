@@ -1,0 +1,130 @@
+"""A tracked frame: a small GA around the motion model's prediction, then Adam.
+
+The local search works on its own genome bounds, centred on the prediction: the
+root may move ``TrackConfig.move`` (times the scale) and turn ``TrackConfig.turn``
+radians about each axis, the scale stays within ``scale_window`` of the last one,
+joints and lengths keep the skeleton's ranges.  The root's orientation genes are a
+turn *relative to the predicted orientation* (composed as rotation matrices), so
+a subject that faces any way is tracked without the roll-pitch-yaw seams of the
+global genome.  The GA and the refinement are the search's own
+(:class:`~jaxpose.search.BranchSwapGA`, :func:`~jaxpose.search.refine`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ..genome import Bounds, decode, encode, genome_bounds
+from ..geometry import matrix_to_rpy, rpy_matrix
+from ..kinematics import Links, collision_pairs, forward_kinematics
+from ..objective import Cloud, Observation, observe, population_cost
+from ..search.config import FitConfig
+from ..search.genes import tie_lengths
+from ..search.loop import make_algorithm, start_algorithm
+from ..search.memetic import keep_better
+from ..search.refine import refine
+from ..skeleton import Pose, Skeleton
+from .config import TrackConfig
+
+ROOT_ANGLES = slice(3, 6)  # the genome's root roll, pitch, yaw genes (genome.GenomeLayout)
+SCALE = 6
+
+
+class LocalFit(NamedTuple):
+    pose: Pose
+    genome: jax.Array  # (D,) in the local bounds
+    links: Links
+    cost: jax.Array
+    history: jax.Array  # (generations,)
+
+
+def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
+    """Gene ranges around the prediction ``pred`` (the root's angles: a relative turn)."""
+    b = genome_bounds(skel, pred.root_t, config.move * pred.scale)
+    lo = b.lo.at[ROOT_ANGLES].set(-config.turn)
+    hi = b.hi.at[ROOT_ANGLES].set(config.turn)
+    s_lo = jnp.maximum(skel.scale_lo, pred.scale / config.scale_window)
+    s_hi = jnp.maximum(jnp.minimum(skel.scale_hi, pred.scale * config.scale_window), s_lo)
+    return Bounds(lo.at[SCALE].set(s_lo), hi.at[SCALE].set(s_hi))
+
+
+def local_decode(skel: Skeleton, bounds: Bounds, R_pred, genome) -> Pose:
+    """A local genome -> :class:`Pose`: its root turn composed with the predicted orientation."""
+    pose = decode(skel, bounds, genome)
+    return pose._replace(root_rpy=matrix_to_rpy(rpy_matrix(pose.root_rpy) @ R_pred))
+
+
+def local_encode(skel: Skeleton, bounds: Bounds, pose: Pose, R_pred) -> jax.Array:
+    """:class:`Pose` -> local genome (the inverse of :func:`local_decode`, clipped to the bounds)."""
+    turn = matrix_to_rpy(rpy_matrix(pose.root_rpy) @ R_pred.T)
+    return encode(skel, bounds, pose._replace(root_rpy=turn))
+
+
+def local_cost_fn(skel: Skeleton, fit: FitConfig, obs: Observation, bounds: Bounds, R_pred):
+    """``cost(genomes (P, D)) -> (P,)``: the global search's objective on local genomes."""
+    obj = fit.objective
+    params = fit.params()
+    weights = (params.free_space_weight, params.collision_weight)
+    pairs = collision_pairs(skel, obj.collision_margin) if obj.collision_weight != 0 else None
+
+    def cost(genomes):
+        if fit.tie_lengths:
+            genomes = tie_lengths(skel, genomes)
+        poses = jax.vmap(partial(local_decode, skel, bounds, R_pred))(genomes)
+        links = jax.vmap(partial(forward_kinematics, skel))(poses)
+        c = population_cost(obs, links.start, links.end, links.radius, obj, None, pairs, weights)
+        return jnp.where(jnp.isfinite(c), c, jnp.inf)
+
+    return cost
+
+
+def local_fit(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, last: Pose, key) -> LocalFit:
+    """Search around the prediction ``pred`` (``last``: the last frame's pose, also in
+    the first population) and refine the best.  ``config.fit`` must be resolved."""
+    fit = config.fit
+    obs = observe(cloud, fit.objective)
+    bounds = local_bounds(skel, config, pred)
+    R_pred = rpy_matrix(pred.root_rpy)
+    objective = local_cost_fn(skel, fit, obs, bounds, R_pred)
+    g_pred = local_encode(skel, bounds, pred, R_pred)
+    g_last = local_encode(skel, bounds, last, R_pred)
+
+    # the objective plus the motion prior: a limb the camera cannot see stays put; robust
+    # (logarithmic) so that a limb may still jump to where the points show it
+    def cost(genomes):
+        return objective(genomes) + config.prior * jnp.mean(jnp.log1p(((genomes - g_pred) / config.std) ** 2), -1)
+
+    P, G = config.population, config.generations
+    ga = dataclasses.replace(fit, algorithm="ga", population=P, generations=G, std_init=config.std,
+                             std_final=config.std_final, islands=1, staged=0.0)
+    params = fit.params().replace(branch_reset_rate=jnp.float32(config.branch_reset_rate))
+    algo, algo_params = make_algorithm(skel, ga, params)
+    k_pop, k_init, k_run = jax.random.split(key, 3)
+    noise = config.std * jax.random.normal(k_pop, (P - 2, g_pred.shape[0]))
+    pop0 = jnp.clip(jnp.concatenate([g_pred[None], g_last[None], g_pred + noise]), 0.0, 1.0)
+    f0 = cost(pop0)
+    state = start_algorithm(algo, algo_params, k_init, pop0, f0)
+
+    def generation(state, k):
+        k_ask, k_tell = jax.random.split(k)
+        pop, asked = algo.ask(k_ask, state, algo_params)
+        state, _ = algo.tell(k_tell, pop, cost(pop), asked, algo_params)
+        return state, state.best_fitness
+
+    state, hist = jax.lax.scan(generation, state, jax.random.split(k_run, G - 1))
+    best_g, best_f = state.best_solution, state.best_fitness
+    if config.refine_steps > 0 and config.refine_count > 0:
+        order = jnp.argsort(state.fitness)[: config.refine_count]
+        g, f = refine(cost, state.population[order], jnp.int32(config.refine_steps), config.learning_rate)
+        best_g, best_f = keep_better(g, f, best_g, best_f)
+    history = jnp.concatenate([jnp.min(f0)[None], hist]).at[-1].set(best_f)
+    if fit.tie_lengths:
+        best_g = tie_lengths(skel, best_g)
+    pose = local_decode(skel, bounds, R_pred, best_g)
+    # the cost reported (and compared with the global search's) is the objective alone
+    return LocalFit(pose, best_g, forward_kinematics(skel, pose), objective(best_g[None])[0], history)

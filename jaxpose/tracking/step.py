@@ -1,0 +1,239 @@
+"""One frame of tracking (:func:`track_step`), a sequence (:func:`track`, one
+``lax.scan``) and the stateful :class:`Tracker` for a live stream.
+
+A frame with fewer than ``min_points`` points is *lost*: nothing is fitted, the
+result is NaN, and the next frame with the subject starts anew.  Otherwise, when
+the last frame was fitted, the motion model predicts this frame's pose and the
+local search (:func:`~jaxpose.tracking.local.local_fit`) fits it (*tracked*).  When
+there is no last pose, or the tracked cost exceeds ``loss_ratio`` times the recent
+cost, the global search (:func:`~jaxpose.search.fit`) fits the frame (*global*) and
+the better of the two results is kept.
+
+Random numbers: frame ``t`` uses ``jax.random.fold_in(key, t)``, split in two: the
+first key for the global search, the second for the local one; so a frame's global
+fit is ``fit(cloud, skeleton, split(fold_in(key, t))[0], config.fit)``.
+
+Under ``jax.vmap`` the branches become selects: every frame of a batch of sequences
+pays for the global search (vmap it to evaluate many sequences, not for speed).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ..genome import genome_layout, pose_to_vector, vector_to_pose
+from ..geometry import matrix_to_rpy, rpy_matrix
+from ..kinematics import forward_kinematics
+from ..objective import Cloud
+from ..search import FitResult, Fitter, fit
+from ..skeleton import Pose, Skeleton
+from .config import TrackConfig
+from .local import local_fit
+
+GLOBAL, TRACKED, LOST = 0, 1, 2
+MODES = ("global", "tracked", "lost")  # TrackFrame.mode's names
+
+
+class TrackState(NamedTuple):
+    """What carries from one frame to the next."""
+
+    pose: jax.Array  # (7 + 4 L,) the last fitted pose (genome.pose_to_vector)
+    velocity: jax.Array  # (7 + 4 L,) its change over the last frame; [3:6]: the turn's roll, pitch, yaw
+    reference: jax.Array  # () the recent cost (moving average)
+    valid: jax.Array  # () bool: the last frame was fitted
+    frame: jax.Array  # () int32: frames seen
+    key: jax.Array
+
+
+class TrackFrame(NamedTuple):
+    """One frame's outcome (stacked along the frames by :func:`track`)."""
+
+    result: FitResult  # NaN for a lost frame
+    mode: jax.Array  # () int32: GLOBAL, TRACKED or LOST (MODES)
+    points: jax.Array  # () int32: the cloud's points (weight > 0)
+    tracked_cost: jax.Array  # () the local search's cost before any recovery (NaN when it did not run)
+
+
+def initial_state(skel: Skeleton, key: jax.Array) -> TrackState:
+    """The state before the first frame: no pose yet."""
+    n = 7 + 4 * skel.num_links
+    zeros = jnp.zeros((n,), jnp.float32)
+    return TrackState(zeros, zeros, jnp.asarray(jnp.inf, jnp.float32), jnp.asarray(False),
+                      jnp.asarray(0, jnp.int32), key)
+
+
+def predict(skel: Skeleton, config: TrackConfig, state: TrackState) -> tuple[Pose, Pose]:
+    """``(prediction, last pose)``: constant velocity, damped by ``config.velocity``."""
+    L = skel.num_links
+    last = vector_to_pose(state.pose, L)
+    pred = vector_to_pose(state.pose + config.velocity * state.velocity, L)
+    R = rpy_matrix(config.velocity * state.velocity[3:6]) @ rpy_matrix(last.root_rpy)
+    angles = jnp.clip(pred.angles, skel.angle_lo, skel.angle_hi)
+    lengths = jnp.clip(pred.lengths, skel.length_lo, skel.length_hi)
+    return pred._replace(root_rpy=matrix_to_rpy(R), angles=angles, lengths=lengths, scale=last.scale), last
+
+
+def change(old: jax.Array, new: jax.Array) -> jax.Array:
+    """The velocity between two pose vectors (the root's turn as the roll, pitch, yaw of ``R_new R_old^T``)."""
+    turn = matrix_to_rpy(rpy_matrix(new[3:6]) @ rpy_matrix(old[3:6]).T)
+    return (new - old).at[3:6].set(turn)
+
+
+def _nan_result(skel: Skeleton, config: TrackConfig) -> FitResult:
+    n = 7 + 4 * skel.num_links
+    pose = vector_to_pose(jnp.full((n,), jnp.nan, jnp.float32), skel.num_links)
+    nan = jnp.asarray(jnp.nan, jnp.float32)
+    zero = jnp.asarray(0, jnp.int32)
+    return FitResult(pose, jnp.full((genome_layout(skel).size,), jnp.nan, jnp.float32),
+                     forward_kinematics(skel, pose), nan, jnp.full((config.fit.generations,), jnp.nan, jnp.float32),
+                     zero, zero, jnp.asarray(0.0, jnp.float32), jnp.asarray(0.0, jnp.float32))
+
+
+def _tracked_result(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, last: Pose, key) -> FitResult:
+    """The local search's outcome as a :class:`FitResult` (history padded with its last
+    cost to the global search's length, as a time-budgeted fit's is)."""
+    r = local_fit(skel, config, cloud, pred, last, key)
+    G = config.fit.generations
+    h = r.history[:G]
+    history = jnp.concatenate([h, jnp.full((G - h.shape[0],), h[-1])]) if h.shape[0] < G else h
+    evals = config.population * config.generations
+    grads = config.refine_count * config.refine_steps
+    dist = jnp.float32(evals + grads) * cloud.points.shape[0] * skel.num_links
+    return FitResult(r.pose, r.genome, r.links, r.cost, history, jnp.asarray(evals, jnp.int32),
+                     jnp.asarray(grads, jnp.int32), dist, jnp.asarray(0.0, jnp.float32))
+
+
+def _select(c, a, b):
+    return jax.tree_util.tree_map(lambda x, y: jnp.where(c, x, y), a, b)
+
+
+class _Pending(NamedTuple):
+    """A frame between the local search and the decision on the global one."""
+
+    local: FitResult
+    points: jax.Array
+    present: jax.Array
+    run_local: jax.Array
+    run_global: jax.Array
+    key: jax.Array  # the global search's key
+
+
+def _local_part(skel: Skeleton, config: TrackConfig, state: TrackState, cloud: Cloud) -> _Pending:
+    """The points, the local search when there is a last pose, and whether the global search must run."""
+    k_global, k_local = jax.random.split(jax.random.fold_in(state.key, state.frame))
+    points = jnp.sum(cloud.weights > 0).astype(jnp.int32)
+    present = points >= config.min_points
+    pred, last = predict(skel, config, state)
+    run_local = present & state.valid
+    local = jax.lax.cond(run_local, lambda: _tracked_result(skel, config, cloud, pred, last, k_local),
+                         lambda: _nan_result(skel, config))
+    lost = ~(local.cost <= config.loss_ratio * state.reference)  # NaN (not run) counts as lost
+    return _Pending(local, points, present, run_local, present & (~state.valid | lost), k_global)
+
+
+def _finish_part(config: TrackConfig, state: TrackState, p: _Pending, glob: FitResult):
+    """This frame's result (the better of the local and the global one, NaN when lost) and the next state."""
+    none = jax.tree_util.tree_map(lambda x: jnp.full_like(x, jnp.nan) if x.dtype.kind == "f" else jnp.zeros_like(x),
+                                  p.local)
+    keep_local = p.run_local & (p.local.cost <= glob.cost) | ~p.run_global  # the global result unless worse
+    result = _select(p.present, _select(keep_local, p.local, glob), none)
+    mode = jnp.where(~p.present, LOST, jnp.where(p.run_global, GLOBAL, TRACKED)).astype(jnp.int32)
+    new_pose = pose_to_vector(result.pose)
+    velocity = jnp.where(mode == TRACKED, change(state.pose, new_pose), 0.0)
+    m = config.cost_memory
+    reference = jnp.where(mode == TRACKED, m * state.reference + (1 - m) * result.cost, result.cost)
+    next_state = TrackState(jnp.where(p.present, new_pose, state.pose), velocity,
+                            jnp.where(p.present, reference, jnp.inf), p.present, state.frame + 1, state.key)
+    return next_state, TrackFrame(result, mode, p.points, p.local.cost)
+
+
+def _as_cloud(cloud: Cloud) -> Cloud:
+    return Cloud(jnp.asarray(cloud.points, jnp.float32), jnp.asarray(cloud.weights, jnp.float32))
+
+
+def track_step(skel: Skeleton, config: TrackConfig, state: TrackState, cloud: Cloud) -> tuple[TrackState, TrackFrame]:
+    """One frame: ``(next state, this frame's outcome)``.  ``config`` must be resolved
+    (:meth:`TrackConfig.for_skeleton`); pure and jit-compatible (``config`` static)."""
+    cloud = _as_cloud(cloud)
+    p = _local_part(skel, config, state, cloud)
+    glob = jax.lax.cond(p.run_global, lambda: _wall0(fit(cloud, skel, p.key, config.fit)),
+                        lambda: _nan_result(skel, config))
+    return _finish_part(config, state, p, glob)
+
+
+def _wall0(r: FitResult) -> FitResult:
+    return r._replace(wall_time=jnp.asarray(r.wall_time, jnp.float32))
+
+
+def track(clouds: Cloud, skeleton: Skeleton, key: jax.Array, config: TrackConfig = TrackConfig()) -> TrackFrame:
+    """Track ``skeleton`` through a stack of clouds (``points (T, N, 3)``, ``weights
+    (T, N)``, camera frame): frame 0 (and every frame after a lost one, and every
+    recovery) by the global search, the others from the last pose.  Returns every
+    frame's :class:`TrackFrame`, stacked along T.
+
+    Pure and jit-compatible (``config`` static); vmappable over sequences and keys::
+
+        track_jit = jax.jit(track, static_argnames="config")
+        frames = jax.vmap(track_jit, in_axes=(0, None, 0, None))(clouds, skel, keys, config)
+    """
+    config = config.validate().for_skeleton(skeleton)
+    _, frames = jax.lax.scan(lambda s, c: track_step(skeleton, config, s, c), initial_state(skeleton, key), clouds)
+    return frames
+
+
+_local_jit = jax.jit(_local_part, static_argnames="config")
+_finish_jit = jax.jit(_finish_part, static_argnames="config")
+
+
+class Tracker:
+    """Live tracking: :meth:`update` fits each new cloud from the last one.
+
+    A tracked frame runs one compiled program (the local search and the loss test,
+    :func:`track_step`'s first half) and a small one that keeps the result; both are
+    compiled by the first update and reused by every frame of the same cloud size
+    (``max_points``).  The global search (frame 0, recovery) runs as a
+    :class:`~jaxpose.search.Fitter`, compiled once too, with the keys :func:`track`
+    uses: the same steps as :func:`track`'s, compiled apart (so equal to rounding)."""
+
+    def __init__(self, skeleton: Skeleton, config: TrackConfig = TrackConfig(), seed: int = 0,
+                 key: jax.Array | None = None):
+        self.skeleton = skeleton
+        self.config = config.validate().for_skeleton(skeleton)
+        self.key = jax.random.key(seed) if key is None else key
+        self.fitter = Fitter(skeleton, self.config.fit)
+        self._none = _nan_result(skeleton, self.config)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the subject: the next frame is fitted by the global search, as frame 0."""
+        self.state = initial_state(self.skeleton, self.key)
+        self.last = None
+
+    def update(self, cloud: Cloud, progress=None) -> FitResult:
+        """Fit one cloud; returns its :class:`FitResult` (NaN when the frame is lost), with
+        ``wall_time`` the seconds this update took.  :attr:`mode` says how it was fitted;
+        ``progress(generation, best, evaluations)`` reports a global search's epochs."""
+        t0 = time.perf_counter()
+        cloud = _as_cloud(cloud)
+        p = _local_jit(self.skeleton, self.config, self.state, cloud)
+        glob = self._none
+        if bool(p.run_global):
+            glob = self.fitter.run(cloud, p.key, progress)
+        self.state, frame = jax.block_until_ready(_finish_jit(self.config, self.state, p, glob))
+        self.last = frame._replace(result=frame.result._replace(
+            wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32)))
+        return self.last.result
+
+    @property
+    def mode(self) -> str | None:
+        """``"global"``, ``"tracked"`` or ``"lost"``: how the last update was fitted (None before any)."""
+        return None if self.last is None else MODES[int(self.last.mode)]
+
+    @property
+    def frame(self) -> int:
+        """Frames seen so far."""
+        return int(self.state.frame)
