@@ -138,7 +138,7 @@ def _local_part(skel: Skeleton, config: TrackConfig, state: TrackState, cloud: C
 def _finish_part(config: TrackConfig, state: TrackState, p: _Pending, glob: FitResult):
     """This frame's result (the better of the local and the global one, NaN when lost) and the next state."""
     none = jax.tree_util.tree_map(lambda x: jnp.full_like(x, jnp.nan) if x.dtype.kind == "f" else jnp.zeros_like(x),
-                                  p.local)
+                                  p.local)._replace(distance_evaluations=jnp.float32(0), wall_time=jnp.float32(0))
     keep_local = p.run_local & (p.local.cost <= glob.cost) | ~p.run_global  # the global result unless worse
     result = _select(p.present, _select(keep_local, p.local, glob), none)
     mode = jnp.where(~p.present, LOST, jnp.where(p.run_global, GLOBAL, TRACKED)).astype(jnp.int32)
