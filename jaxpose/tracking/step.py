@@ -58,11 +58,13 @@ class TrackFrame(NamedTuple):
     tracked_cost: jax.Array  # () the local search's cost before any recovery (NaN when it did not run)
 
 
-def initial_state(skel: Skeleton, key: jax.Array) -> TrackState:
-    """The state before the first frame: no pose yet."""
+def initial_state(skel: Skeleton, key: jax.Array, init: Pose | None = None) -> TrackState:
+    """The state before the first frame: no pose yet (the first frame runs the global
+    search), or the pose ``init`` (camera frame) when it is known (the first frame is tracked from it)."""
     n = 7 + 4 * skel.num_links
     zeros = jnp.zeros((n,), jnp.float32)
-    return TrackState(zeros, zeros, jnp.asarray(jnp.inf, jnp.float32), jnp.asarray(False),
+    pose = zeros if init is None else pose_to_vector(init).astype(jnp.float32)
+    return TrackState(pose, zeros, jnp.asarray(jnp.inf, jnp.float32), jnp.asarray(init is not None),
                       jnp.asarray(0, jnp.int32), key)
 
 
@@ -169,11 +171,13 @@ def _wall0(r: FitResult) -> FitResult:
     return r._replace(wall_time=jnp.asarray(r.wall_time, jnp.float32))
 
 
-def track(clouds: Cloud, skeleton: Skeleton, key: jax.Array, config: TrackConfig = TrackConfig()) -> TrackFrame:
+def track(clouds: Cloud, skeleton: Skeleton, key: jax.Array, config: TrackConfig = TrackConfig(),
+          init: Pose | None = None) -> TrackFrame:
     """Track ``skeleton`` through a stack of clouds (``points (T, N, 3)``, ``weights
     (T, N)``, camera frame): frame 0 (and every frame after a lost one, and every
-    recovery) by the global search, the others from the last pose.  Returns every
-    frame's :class:`TrackFrame`, stacked along T.
+    recovery) by the global search, the others from the last pose (``init``: a known
+    pose to track frame 0 from instead).  Returns every frame's :class:`TrackFrame`,
+    stacked along T.
 
     Pure and jit-compatible (``config`` static); vmappable over sequences and keys::
 
@@ -181,7 +185,7 @@ def track(clouds: Cloud, skeleton: Skeleton, key: jax.Array, config: TrackConfig
         frames = jax.vmap(track_jit, in_axes=(0, None, 0, None))(clouds, skel, keys, config)
     """
     config = config.validate().for_skeleton(skeleton)
-    _, frames = jax.lax.scan(lambda s, c: track_step(skeleton, config, s, c), initial_state(skeleton, key), clouds)
+    _, frames = jax.lax.scan(lambda s, c: track_step(skeleton, config, s, c), initial_state(skeleton, key, init), clouds)
     return frames
 
 
@@ -200,8 +204,9 @@ class Tracker:
     uses: the same steps as :func:`track`'s, compiled apart (so equal to rounding)."""
 
     def __init__(self, skeleton: Skeleton, config: TrackConfig = TrackConfig(), seed: int = 0,
-                 key: jax.Array | None = None):
+                 key: jax.Array | None = None, init: Pose | None = None):
         self.skeleton = skeleton
+        self.init = init
         self.config = config.validate().for_skeleton(skeleton)
         self.key = jax.random.key(seed) if key is None else key
         self.fitter = Fitter(skeleton, self.config.fit)
@@ -209,8 +214,9 @@ class Tracker:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the subject: the next frame is fitted by the global search, as frame 0."""
-        self.state = initial_state(self.skeleton, self.key)
+        """Start again: the next frame is frame 0 (tracked from ``init`` when it was given, else
+        fitted by the global search)."""
+        self.state = initial_state(self.skeleton, self.key, self.init)
         self.last = None
 
     def update(self, cloud: Cloud, progress=None) -> FitResult:

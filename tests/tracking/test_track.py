@@ -1,0 +1,248 @@
+"""Tracking (jaxpose.tracking): the pure ``track`` (one scan), the stateful ``Tracker``,
+loss and recovery.  Oracles: the per-frame global ``fit`` (frame 0 and every
+re-initialisation are that fit), a NumPy recomputation of the objective, the
+truth of a synthetic motion, and ``track`` itself run per sequence (for vmap).
+
+Every test shares one tiny configuration, so its programs compile once."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxpose as jp
+from jaxpose.objective import Cloud
+from jaxpose.tracking import GLOBAL, LOST, MODES, TRACKED, TrackConfig, Tracker, track
+from oracles import brute_cost
+
+N = 128  # points per cloud
+T = 6  # frames
+# the settings of `jaxpose track --islands 1 --population 16 --generations 25 --no-refine --track-population 12
+# --track-generations 3 --track-refine-steps 8 --max-points 128`, so that its test reuses these programs
+FIT = jp.FitConfig(islands=1, population=16, generations=25, memetic_steps=0, final_refine_steps=0)
+CFG = TrackConfig(fit=FIT, population=12, generations=3, refine_steps=8)
+COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
+
+
+@contextlib.contextmanager
+def count_compiles():
+    """The functions XLA compiles inside the block (one event per executable built)."""
+    names: list[str] = []
+
+    def listener(event, duration, **kwargs):
+        if event == COMPILE_EVENT:
+            names.append(str(kwargs.get("fun_name", "?")))
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        yield names
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+
+
+@pytest.fixture(scope="module")
+def skel():
+    return jp.load_skeleton("spider")
+
+
+def true_pose(skel, t: int, shift=(0.0, 0.0, 0.0)):
+    """A spider 1 m in front of the camera, seen from above at an angle, legs moving a little per frame."""
+    rest = jp.rest_pose(skel, root_t=(0.05 + shift[0], 0.1 + shift[1], 1.0 + shift[2]), root_rpy=(-2.2, 0.0, 0.3))
+    wave = 0.06 * np.sin(0.4 * t + np.arange(skel.num_links * 3).reshape(-1, 3))
+    angles = jnp.clip(rest.angles + wave, skel.angle_lo, skel.angle_hi)
+    return rest._replace(angles=angles.astype(jnp.float32), root_t=rest.root_t + jnp.float32(0.004 * t))
+
+
+def surface_cloud(skel, pose, seed: int) -> Cloud:
+    """Points on the capsules' camera-facing halves (the camera at the origin looking along +z)."""
+    links = jp.forward_kinematics(skel, pose)
+    s, e, r = (np.asarray(a, np.float64) for a in (links.start, links.end, links.radius))
+    rng = np.random.default_rng(seed)
+    pts = []
+    while len(pts) < N:
+        i = rng.integers(len(s))
+        axis = s[i] + rng.uniform() * (e[i] - s[i])
+        d = rng.standard_normal(3)
+        u = (e[i] - s[i]) / max(np.linalg.norm(e[i] - s[i]), 1e-9)
+        d -= d.dot(u) * u
+        p = axis + r[i] * d / np.linalg.norm(d)
+        if np.dot(p - axis, p) < 0:  # faces the camera
+            pts.append(p)
+    return Cloud(jnp.asarray(np.array(pts), jnp.float32), jnp.ones(N, jnp.float32))
+
+
+def empty_cloud() -> Cloud:
+    return Cloud(jnp.zeros((N, 3), jnp.float32), jnp.zeros(N, jnp.float32))
+
+
+def stack(clouds) -> Cloud:
+    return Cloud(jnp.stack([c.points for c in clouds]), jnp.stack([c.weights for c in clouds]))
+
+
+@pytest.fixture(scope="module")
+def motion(skel):
+    """T frames of smooth motion, then the subject out of view for a frame, then back 0.5 m away."""
+    clouds = [surface_cloud(skel, true_pose(skel, t), t) for t in range(T)]
+    truth = [true_pose(skel, t) for t in range(T)]
+    back = true_pose(skel, T + 1, shift=(0.5, 0.0, 0.3))
+    return clouds + [empty_cloud(), surface_cloud(skel, back, 99)], truth + [None, back]
+
+
+track_jit = jax.jit(track, static_argnames="config")
+
+
+@pytest.fixture(scope="module")
+def tracked(skel, motion):
+    return track_jit(stack(motion[0]), skel, jax.random.key(3), CFG)
+
+
+def link_errors(skel, result, pose):
+    """Largest capsule-end error (m), symmetric over the spider's legs (its 4-fold turn)."""
+    from jaxpose.metrics import evaluate
+
+    want = jp.forward_kinematics(skel, pose)
+    e = evaluate(np.asarray(result.links.start), np.asarray(result.links.end), np.asarray(want.start),
+                 np.asarray(want.end), skel)
+    return e["symmetric"]["mpjpe_mm"] / 1000, e["symmetric"]["pcp"]
+
+
+def frame(frames, t):
+    return jax.tree_util.tree_map(lambda a: a[t], frames)
+
+
+fit_jit = jax.jit(jp.fit, static_argnames="config")
+
+
+def global_fit(skel, cloud, t: int):
+    """The documented oracle of a global frame: fit with the first half of fold_in(key, t)."""
+    key = jax.random.split(jax.random.fold_in(jax.random.key(3), t))[0]
+    return fit_jit(cloud, skel, key, CFG.for_skeleton(skel).fit)
+
+
+@pytest.mark.parametrize("t", [0, T + 1])
+def test_global_frames_are_the_per_frame_fit(skel, motion, tracked, t):
+    """Frame 0 and the first frame after a lost one are the global search's fit of that frame alone."""
+    want = global_fit(skel, motion[0][t], t)
+    got = frame(tracked, t)
+    assert int(got.mode) == GLOBAL
+    np.testing.assert_allclose(np.asarray(got.result.links.end), np.asarray(want.links.end), atol=1e-4)
+    np.testing.assert_allclose(float(got.result.cost), float(want.cost), rtol=1e-4)
+    np.testing.assert_allclose(np.asarray(got.result.history), np.asarray(want.history), rtol=1e-4)
+
+
+def test_a_frame_without_the_subject_is_lost(tracked):
+    modes = np.asarray(tracked.mode)
+    assert modes[0] == GLOBAL and np.all(modes[1:T] == TRACKED), modes
+    lost = frame(tracked, T)
+    assert int(lost.mode) == LOST and int(lost.points) == 0
+    assert np.all(np.isnan(np.asarray(lost.result.links.end))) and np.isnan(float(lost.result.cost))
+    assert int(lost.result.objective_evaluations) == 0 and np.isnan(float(lost.tracked_cost))
+    r = frame(tracked, 1).result
+    assert int(r.objective_evaluations) == CFG.population * CFG.generations
+    assert int(r.gradient_evaluations) == CFG.refine_top * CFG.refine_steps
+
+
+@pytest.fixture(scope="module")
+def from_truth(skel, motion):
+    """A Tracker started from frame 0's true pose, through the motion, the lost frame and the return."""
+    clouds, truth = motion
+    tr = Tracker(skel, CFG, key=jax.random.key(3), init=truth[0])
+    out = [(tr.update(clouds[0]), tr.mode)]
+    with count_compiles() as compiled:
+        out += [(tr.update(c), tr.mode) for c in clouds[1:T + 1]]  # tracked frames, then the lost one
+    back = tr.update(clouds[T + 1])  # the return: the global search (its programs compile here)
+    return tr, out + [(back, tr.mode)], compiled
+
+
+def test_tracked_frames_follow_the_true_motion(skel, motion, from_truth):
+    _, truth = motion
+    _, out, _ = from_truth
+    assert [m for _, m in out] == ["tracked"] * T + ["lost", "global"]
+    for t in range(T):
+        mpjpe, pcp = link_errors(skel, out[t][0], truth[t])
+        assert pcp == 1.0 and mpjpe < 0.015, (t, mpjpe, pcp)
+
+
+def test_a_tracked_cost_is_the_objective_alone(skel, motion, from_truth):
+    """The reported cost leaves the motion prior out: at least NumPy's data term of the
+    returned links (the other terms are non-negative), and within the free-space and
+    collision terms' reach of it."""
+    clouds, _ = motion
+    for t in (1, 2, 3):
+        r = from_truth[1][t][0]
+        sigma = float(jp.cloud_spread(clouds[t])) * FIT.objective.sigma_factor
+        data = brute_cost(np.asarray(clouds[t].points), np.asarray(clouds[t].weights), np.asarray(r.links.start),
+                          np.asarray(r.links.end), np.asarray(r.links.radius), sigma=sigma)
+        assert data - 1e-5 <= float(r.cost) <= data + 0.05, (t, data, float(r.cost))
+
+
+def test_tracker_update_never_recompiles(skel, motion, from_truth):
+    clouds, _ = motion
+    tr, _, compiled = from_truth
+    assert compiled == [], compiled  # tracked frames and a lost one after the first update
+    with count_compiles() as again:
+        tr.reset()
+        for c in clouds:  # tracked, lost, and a global search: all compiled already
+            tr.update(c)
+    assert again == [], again
+
+
+def test_tracker_is_deterministic_and_matches_track(skel, motion, tracked):
+    """Same seed, same frames: bit-identical; and the modes of track, its links equal to rounding
+    (the Tracker runs the global search as a Fitter, track as one traced fit)."""
+    clouds, _ = motion
+    runs = []
+    for _ in range(2):
+        tr = Tracker(skel, CFG, key=jax.random.key(3))
+        runs.append([(tr.update(c), tr.mode) for c in clouds])
+    for (a, _), (b, _) in zip(*runs):
+        np.testing.assert_array_equal(np.asarray(a.links.end), np.asarray(b.links.end))
+        np.testing.assert_array_equal(np.asarray(a.cost), np.asarray(b.cost))
+    assert [m for _, m in runs[0]] == [MODES[int(m)] for m in np.asarray(tracked.mode)]
+    ends = np.stack([np.asarray(r.links.end) for r, _ in runs[0]])
+    np.testing.assert_allclose(ends, np.asarray(tracked.result.links.end), atol=5e-3)
+
+
+def test_a_jump_in_cost_reinitialises(skel):
+    """The subject teleports 0.4 m between two frames: the local search cannot follow, its cost
+    jumps above loss_ratio times the recent cost, and the global search takes the frame."""
+    clouds = [surface_cloud(skel, true_pose(skel, t), t) for t in range(3)]
+    clouds.append(surface_cloud(skel, true_pose(skel, 3, shift=(0.4, -0.3, 0.3)), 7))
+    clouds += [empty_cloud()] * (T + 2 - len(clouds))  # the shapes of the shared program
+    frames = track_jit(stack(clouds), skel, jax.random.key(3), CFG)
+    modes = np.asarray(frames.mode)
+    assert list(modes[:4]) == [GLOBAL, TRACKED, TRACKED, GLOBAL], modes
+    assert float(frames.tracked_cost[3]) > CFG.loss_ratio * float(frames.result.cost[2])
+    assert float(frames.result.cost[3]) < float(frames.tracked_cost[3])
+    want = global_fit(skel, clouds[3], 3)
+    np.testing.assert_allclose(np.asarray(frames.result.links.end[3]), np.asarray(want.links.end), atol=1e-4)
+
+
+@pytest.mark.slow  # a third compile of the whole search (about 25 s on 2 cores)
+def test_track_under_vmap_equals_each_sequence(skel, motion, tracked):
+    clouds, _ = motion
+    other = stack([surface_cloud(skel, true_pose(skel, t + 2), 50 + t) for t in range(T + 2)])
+    both = jax.tree_util.tree_map(lambda a, b: jnp.stack([a, b]), stack(clouds), other)
+    keys = jnp.stack([jax.random.key(3), jax.random.key(4)])
+    batch = jax.jit(jax.vmap(track, in_axes=(0, None, 0, None)), static_argnames="config")(both, skel, keys, CFG)
+    single = track_jit(other, skel, jax.random.key(4), CFG)
+    for b, want in ((0, tracked), (1, single)):
+        got = jax.tree_util.tree_map(lambda a: a[b], batch)
+        np.testing.assert_array_equal(np.asarray(got.mode), np.asarray(want.mode))
+        np.testing.assert_allclose(np.asarray(got.result.links.end), np.asarray(want.result.links.end), atol=2e-3)
+
+
+def test_config_is_checked():
+    with pytest.raises(jp.ConfigError, match="loss_ratio"):
+        TrackConfig(loss_ratio=0.5).validate()
+    with pytest.raises(jp.ConfigError, match="generations"):
+        TrackConfig(generations=0).validate()
+    with pytest.raises(jp.ConfigError, match="velocity"):
+        TrackConfig(velocity=2.0).validate()
+    with pytest.raises(jp.ConfigError, match="population"):
+        TrackConfig(fit=dataclasses.replace(FIT, population=1)).validate()
