@@ -43,7 +43,55 @@ def register(sub) -> None:
     p.add_argument("--cloud", default=None, metavar="PLY",
                    help="also write every measured pixel of the depth image as a point cloud (binary PLY, "
                         "camera frame, metres)")
+    p.add_argument("--sequence", type=int, default=None, metavar="FRAMES",
+                   help="render a motion sequence of FRAMES frames at 30 fps instead: --out is then a folder "
+                        "(depth/, truth/, background.png, index.json; docs/tracking.md)")
+    p.add_argument("--gap", default=None, metavar="FIRST,LENGTH",
+                   help="with --sequence: the subject is out of view for LENGTH frames from FIRST, then back elsewhere")
     p.set_defaults(func=run)
+
+
+def run_sequence(args) -> int:
+    """``--sequence``: a motion sequence with its truth per frame (jaxpose.sequences)."""
+    from .. import sequences as S
+    from ..errors import ConfigError
+    from ..io.depth_file import parse_intrinsics
+    from ..io.sequence_file import write_sequence
+    from ..io.skeleton_file import load_skeleton
+    from ..render import SensorModel
+
+    if not 1 <= args.sequence <= 10000:
+        raise ConfigError(f"--sequence {args.sequence}: expected 1..10000 frames")
+    gap = None
+    if args.gap:
+        try:
+            gap = tuple(int(v) for v in args.gap.split(","))
+            assert len(gap) == 2 and gap[0] >= 1 and gap[1] >= 1 and sum(gap) < args.sequence
+        except (ValueError, AssertionError):
+            raise ConfigError(f"--gap {args.gap!r}: expected FIRST,LENGTH with 1 <= FIRST and FIRST + LENGTH "
+                              f"< {args.sequence} frames") from None
+    if not 0 <= args.seed < 2**32:
+        raise ConfigError(f"--seed must lie in 0 .. 2**32-1, got {args.seed}")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise ConfigError(f"--out {args.out}: with --sequence, a folder (this is a file)")
+    skel = load_skeleton(args.skeleton, max_capsules=args.max_capsules)
+    k = parse_intrinsics(args.intrinsics)
+    if args.size:
+        w, h = _size(args.size)
+        sx, sy = w / k.width, h / k.height
+        k = k._replace(fx=k.fx * sx, fy=k.fy * sy, cx=(k.cx + 0.5) * sx - 0.5, cy=(k.cy + 0.5) * sy - 0.5,
+                       width=w, height=h)
+    sensor = SensorModel() if args.noise else None
+    kind = {"spider": S.spider_sequence, "humanoid": S.humanoid_sequence}.get(skel.name)
+    if kind is not None:
+        seq = kind(skel, seed=args.seed, frames=args.sequence, gap=gap, k=k, sensor=sensor)
+    else:
+        seq = S.robot_sequence(skel, skel.name, seed=args.seed, frames=args.sequence, gap=gap, k=k, sensor=sensor)
+    os.makedirs(args.out, exist_ok=True)
+    write_sequence(args.out, skel, seq, args.skeleton, sensor)
+    print(f"{args.out}: {args.sequence} frames of {skel.name} ({seq.name}, seed {args.seed})"
+          + (f", out of view in frames {gap[0]}..{gap[0] + gap[1] - 1}" if gap else ""))
+    return 0
 
 
 def _size(spec: str):
@@ -59,6 +107,8 @@ def _size(spec: str):
 
 
 def run(args) -> int:
+    if args.sequence is not None:
+        return run_sequence(args)
     import numpy as np
 
     from ..datasets import default_distance, random_pose, render_orbit, subject_frame
@@ -103,6 +153,8 @@ def run(args) -> int:
     for flag, p in outputs:
         check_output_path(p, flag)
 
+    if args.gap:
+        raise ConfigError("--gap works with --sequence")
     if args.pose == "random":
         pose = random_pose(skel, args.seed)
     elif args.pose == "rest":
