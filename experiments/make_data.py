@@ -3,6 +3,9 @@
 - data/spider/: 4 poses x 5 inclinations (0, 15, 30, 45, 60 degrees) = 20 images
 - data/humanoid/: 4 subjects (different proportions) x 8 natural poses = 32 images
 
+- data/sequences/: per model two motion sequences and one with a gap (the subject
+  out of view for 8 frames, then back elsewhere), 90 frames at 30 fps each
+
 Every image comes with its background-only image (floor and clutter) and a
 ground-truth JSON; data/<model>/index.json lists them.  Kinect v1 sensor model on.
 A different --seed gives a different (unseen) set of images.
@@ -82,14 +85,46 @@ def write_samples(skel, samples, folder: str, skeleton_file: str, seed: int, sen
     return index
 
 
+SEQUENCE_FRAMES = 90
+SEQUENCE_GAP = (40, 8)  # the gap sequences: out of view for 8 frames from frame 40
+
+
+def sequence_set(model: str, skel, seed: int = 0, frames: int = SEQUENCE_FRAMES):
+    """The motion sequences of a model: two plain ones and one with a gap (:mod:`jaxpose.sequences`)."""
+    from jaxpose import sequences as S
+
+    make = S.spider_sequence if model == "spider" else S.humanoid_sequence
+    return [make(skel, seed=seed, frames=frames, index=0), make(skel, seed=seed, frames=frames, index=1),
+            make(skel, seed=seed, frames=frames, gap=SEQUENCE_GAP, index=0)]
+
+
+def write_sequences(model: str, out_dir: str, seed: int = 0, quiet: bool = False) -> list[str]:
+    """data/sequences/<model>_{motion0,motion1,gap0}/ (jaxpose/io/sequence_file.py's layout)."""
+    from jaxpose.io.sequence_file import write_sequence
+
+    skel = load_skeleton(model)
+    t0 = time.time()
+    names = []
+    for seq in sequence_set(model, skel, seed):
+        write_sequence(os.path.join(out_dir, "sequences", seq.name), skel, seq, f"skeletons/{model}.toml",
+                       R.SensorModel())
+        names.append(seq.name)
+    if not quiet:
+        log(f"{out_dir}/sequences: {', '.join(names)} ({SEQUENCE_FRAMES} frames each) in {time.time() - t0:.1f} s")
+    return names
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="data", help="output folder (default data/)")
     ap.add_argument("--seed", type=int, default=0, help="seed (default 0: the reference data sets)")
     ap.add_argument("--models", nargs="+", default=list(MODELS), choices=MODELS)
+    ap.add_argument("--no-sequences", action="store_true", help="leave out the motion sequences (data/sequences/)")
     args = ap.parse_args(argv)
     for m in args.models:
         write_dataset(m, args.out, args.seed)
+        if not args.no_sequences:
+            write_sequences(m, args.out, args.seed)
     return 0
 
 
