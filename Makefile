@@ -32,7 +32,7 @@ paper: $(STAMP)
 	$(BIN)/python experiments/paper_table.py
 	$(BIN)/python experiments/mujoco_views.py
 	$(BIN)/python experiments/hard_poses.py
-	cd experiments && ../$(BIN)/python track_table.py
+	$(BIN)/python experiments/track_table.py
 
 sweep: $(STAMP)
 	$(BIN)/python experiments/sweep_population.py
