@@ -9,6 +9,8 @@ The pure functional core (usable inside your own ``jax.jit``/``jax.vmap``):
   :func:`population_cost`, :func:`observe`, :func:`cloud_spread`
 - search: :func:`fit` (pure), :func:`fit_cloud`, :class:`Fitter`, :class:`FitConfig` (static settings),
   :class:`FitParams` (traced settings), :class:`FitResult`, :class:`BranchSwapGA`, :class:`BoundedHillClimbing`
+- tracking: :func:`track` (pure, one ``lax.scan`` over frames), :class:`Tracker` (live),
+  :class:`TrackConfig`
 - depth: :class:`Intrinsics`, :data:`KINECT_V1`, :func:`depth_to_cloud`, :func:`points_to_cloud`,
   :func:`sensor_points_to_cloud`
 
@@ -34,6 +36,7 @@ from .objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, observe,
 from .pipeline import InputOptions, fit_file
 from .search import BoundedHillClimbing, BranchSwapGA, FitConfig, FitParams, Fitter, FitResult, fit, fit_cloud
 from .skeleton import Pose, Skeleton, rest_pose
+from .tracking import TrackConfig, Tracker, track
 
 __all__ = [
     "KINECT_V1", "BoundedHillClimbing", "BranchSwapGA", "Cloud", "ConfigError", "DepthError", "FitConfig",
@@ -42,5 +45,5 @@ __all__ = [
     "depth_to_cloud", "encode", "fit", "fit_cloud", "fit_file", "forward_kinematics", "genome_bounds",
     "genome_layout", "load_depth", "load_points", "load_skeleton", "observe", "paper_cost", "parse_intrinsics",
     "points_to_cloud", "population_cost", "project", "rest_pose", "sensor_points_to_cloud", "shipped_skeletons",
-    "to_sensor_frame",
+    "to_sensor_frame", "TrackConfig", "Tracker", "track",
 ]

@@ -447,7 +447,7 @@ def run(args: argparse.Namespace) -> int:
             doc["skeleton"]["search_lengths"] = bool(args.search_lengths)
             doc["skeleton"]["max_capsules"] = capsules
             write_json(out, doc)
-            entries.append({"input": os.path.basename(f.source) if f.index is None else f"{f.name}",
+            entries.append({"input": f.source if f.index is None else f.name,  # the path as given
                             "frame": i, "mode": mode, "cost": doc["cost"], "wall_seconds": wall})
             if args.video:
                 links = None if mode == "lost" else (np.asarray(result.links.start), np.asarray(result.links.end))

@@ -51,7 +51,7 @@ def test_a_folder_is_tracked_frame_after_frame(sequence, tmp_path):
     assert rc == 0
     track = json.loads((out / "track.json").read_text())
     names = [f"f{i:03d}" for i in range(FRAMES)]
-    assert [f["input"] for f in track["frames"]] == [n + ".png" for n in names]
+    assert [f["input"] for f in track["frames"]] == [str(sequence / "frames" / (n + ".png")) for n in names]
     modes = [f["mode"] for f in track["frames"]]
     lost = list(range(GAP[0], GAP[0] + GAP[1]))
     assert modes[0] == "global" and [modes[i] for i in lost] == ["lost"] * GAP[1]
