@@ -178,7 +178,7 @@ def main(argv=None) -> int:
             row = summarise(seq.name, frames, same, full, seq.meta.get("gap"))
             rows.append(row)
             details[seq.name] = frames
-            log(f"  {seq.name}: PCP {100 * row['pcp']:.1f}%, {row['fps']:.0f} frames/s, re-inits "
+            log(f"  {seq.name}: PCP {100 * row['pcp']:.1f}%, {row['fps'] or 0:.0f} frames/s, re-inits "
                 f"{row['reinitialisations']}, recover {row['frames_to_recover']}, scratch same budget "
                 f"{100 * row['scratch_same_budget_pcp']:.1f}%, full {row['scratch_full_pcp']}")
     machine = machine_id()

@@ -162,7 +162,8 @@ def robot_sequence(skel: Skeleton, name: str, seed: int = 0, frames: int = 90, f
                    yaw=float(rng.uniform(-np.pi, np.pi)))
     from .datasets import default_distance
 
-    distance = default_distance(subject_frame(skel, poses[0])[1], k, margin=1.6)
+    # framed with room to move, within the sensor's 4 m range
+    distance = min(default_distance(subject_frame(skel, poses[0])[1], k, margin=1.3), 3.5)
     return _render(skel, poses, name, index, gap, seed, elevation_deg, float(rng.uniform(0, 360)), distance, k,
                    sensor, fps)
 
