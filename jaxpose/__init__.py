@@ -25,6 +25,10 @@ from ._xla_flags import disable_ynn_fusions as _disable_ynn_fusions
 
 _disable_ynn_fusions()  # before anything computes: see jaxpose/_xla_flags.py
 
+from .distributed import initialize_from_environment as _initialize_from_environment
+
+_initialize_from_environment()  # JAXPOSE_DISTRIBUTED=1: join a multi-process run (jaxpose/distributed.py)
+
 from .camera import KINECT_V1, Intrinsics, depth_to_cloud, points_to_cloud, project, sensor_points_to_cloud
 from .errors import ConfigError, DepthError, IntrinsicsError, JaxposeError, SkeletonError
 from .genome import decode, encode, genome_bounds, genome_layout
