@@ -7,7 +7,8 @@ The pure functional core (usable inside your own ``jax.jit``/``jax.vmap``):
 - kinematics: :func:`forward_kinematics` -> :class:`Links`, :func:`collision_pairs`
 - objective: :class:`Cloud`, :class:`ObjectiveConfig`, :func:`paper_cost`, :func:`data_cost`,
   :func:`population_cost`, :func:`observe`, :func:`cloud_spread`
-- search: :func:`fit` (pure), :func:`fit_cloud`, :class:`Fitter`, :class:`FitConfig` (static settings),
+- search: :func:`fit` (pure), :func:`fit_batch` (sharded over devices), :func:`fit_cloud`, :class:`Fitter`,
+  :class:`FitConfig` (static settings),
   :class:`FitParams` (traced settings), :class:`FitResult`, :class:`BranchSwapGA`, :class:`BoundedHillClimbing`
 - tracking: :func:`track` (pure, one ``lax.scan`` over frames), :class:`Tracker` (live),
   :class:`TrackConfig`
@@ -37,6 +38,7 @@ from .io.depth_file import load_depth, parse_intrinsics
 from .io.skeleton_file import load_skeleton, shipped_skeletons
 from .kinematics import Links, collision_pairs, forward_kinematics
 from .objective import Cloud, ObjectiveConfig, cloud_spread, data_cost, observe, paper_cost, population_cost
+from .parallel import fit_batch
 from .pipeline import InputOptions, fit_file
 from .search import BoundedHillClimbing, BranchSwapGA, FitConfig, FitParams, Fitter, FitResult, fit, fit_cloud
 from .skeleton import Pose, Skeleton, rest_pose
@@ -46,7 +48,7 @@ __all__ = [
     "KINECT_V1", "BoundedHillClimbing", "BranchSwapGA", "Cloud", "ConfigError", "DepthError", "FitConfig",
     "FitParams", "FitResult", "Fitter", "InputOptions", "Intrinsics", "IntrinsicsError", "JaxposeError", "Links",
     "ObjectiveConfig", "Pose", "Skeleton", "SkeletonError", "cloud_spread", "collision_pairs", "data_cost", "decode",
-    "depth_to_cloud", "encode", "fit", "fit_cloud", "fit_file", "forward_kinematics", "genome_bounds",
+    "depth_to_cloud", "encode", "fit", "fit_batch", "fit_cloud", "fit_file", "forward_kinematics", "genome_bounds",
     "genome_layout", "load_depth", "load_points", "load_skeleton", "observe", "paper_cost", "parse_intrinsics",
     "points_to_cloud", "population_cost", "project", "rest_pose", "sensor_points_to_cloud", "shipped_skeletons",
     "to_sensor_frame", "TrackConfig", "Tracker", "track",

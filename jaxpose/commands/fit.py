@@ -17,6 +17,9 @@ from ..search import FitConfig
 from .progress import ProgressBar, check_output_path
 from .robot_options import add_max_capsules, check_max_capsules, check_robot_option
 
+BATCH = 8  # images per device in one batch of several inputs (--batch)
+
+
 def register(sub) -> None:
     p = sub.add_parser("fit", help="fit a skeleton to depth images or point clouds",
                        description="Fit a skeleton to a depth image or a point cloud (several with --out-dir: "
@@ -78,6 +81,15 @@ def register(sub) -> None:
     p.add_argument("--out-dir", metavar="DIR",
                    help="write DIR/<input name>.json for every input (needed for several inputs)")
     p.add_argument("--plots", action="store_true", help="with --out-dir: also DIR/<input name>.png")
+    p.add_argument("--devices", type=int, metavar="N",
+                   help="several inputs: fit them in batches sharded over the first N devices of this machine "
+                        "(default: every device; on a machine whose only device is its CPU the inputs are "
+                        "fitted one by one unless --devices or --batch is given)")
+    p.add_argument("--batch", type=int, metavar="K",
+                   help=f"several inputs: images per device in one compiled batch (default {BATCH}; results "
+                        "are written after each batch)")
+    p.add_argument("--resume", action="store_true",
+                   help="with --out-dir: skip the inputs whose result (and plot, with --plots) is already written")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -224,6 +236,44 @@ def _show_input_warning(message, category, filename, lineno, file=None, line=Non
         sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
 
 
+def finished(job) -> bool:
+    """Whether an input's outputs are all written (``--resume``): results are written
+    atomically, so a file that exists is whole."""
+    _, result, plot = job
+    return os.path.isfile(result) and (plot is None or os.path.isfile(plot))
+
+
+def batched(args, jobs) -> bool:
+    """Whether the inputs are fitted as sharded batches (:func:`jaxpose.parallel.fit_batch`):
+    several inputs, or several processes; not with --hypotheses or --time-budget, which
+    fit one input at a time.  :class:`ConfigError` for batch options that cannot apply."""
+    import jax
+
+    from .. import distributed
+
+    distributed.check()
+    if args.batch is not None and args.batch < 1:
+        raise ConfigError(f"--batch must be >= 1 image per device, got {args.batch}")
+    if args.devices is not None and not 1 <= args.devices <= jax.local_device_count():
+        raise ConfigError(f"--devices must lie within 1 .. {jax.local_device_count()} (this machine's "
+                          f"{jax.devices()[0].platform.upper()} devices), got {args.devices}")
+    if args.resume and args.out_dir is None:
+        raise ConfigError("--resume works with --out-dir (it skips the results already in DIR)")
+    many = len(jobs) > 1 or jax.process_count() > 1
+    one_by_one = [f for f, on in (("--hypotheses", args.hypotheses > 1), ("--time-budget", args.time_budget))
+                  if on]
+    if one_by_one and jax.process_count() > 1:
+        raise ConfigError(f"{one_by_one[0]} fits one input at a time, on one process; this run has "
+                          f"{jax.process_count()} processes")
+    if one_by_one and args.devices is not None:
+        raise ConfigError(f"--devices shards batches of inputs; {one_by_one[0]} fits one input at a time")
+    # a lone CPU gains nothing from batches (one fit keeps its cores busy), and one by
+    # one each result equals a run on that input alone (docs/scaling.md)
+    lone_cpu = jax.device_count() == 1 and jax.devices()[0].platform == "cpu"
+    explicit = args.devices is not None or args.batch is not None
+    return many and not one_by_one and (explicit or not lone_cpu)
+
+
 def run(args: argparse.Namespace) -> int:
     from ..io.cloud_file import is_cloud_file
     from ..io.atomic import write_json
@@ -252,6 +302,12 @@ def run(args: argparse.Namespace) -> int:
     # a mixed batch: the depth-image options (a background) leave the clouds alone
     per_input = {path: dataclasses.replace(options, background=None) if is_cloud_file(path) else options
                  for path, _, _ in jobs}
+    if batched(args, jobs):
+        from .fit_batch import run_batches
+
+        return run_batches(args, jobs, skel, skel_file, capsules, config, per_input)
+    if args.resume:
+        jobs = [job for job in jobs if not finished(job)]
     if len(jobs) > 1:
         for path, _, _ in jobs:  # every input is read and checked before the first search
             check_input(path, per_input[path])

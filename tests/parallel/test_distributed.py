@@ -17,7 +17,7 @@ import sys
 
 import numpy as np
 import pytest
-from test_sharding import WORKER, assert_same_fits, fits, forced_devices_env, run_worker
+from test_sharding import WORKER, assert_same_fits, fits, forced_devices_env
 
 from jaxpose.distributed import share
 
@@ -35,7 +35,7 @@ def test_share_is_round_robin():
     assert sorted(i for sh in shares for i in sh) == items
 
 
-def test_two_processes_equal_one_process(tmp_path):
+def test_two_processes_equal_one_process(tmp_path, two_devices):
     port = free_port()
     procs, outs = [], []
     for pid in range(2):
@@ -60,8 +60,7 @@ def test_two_processes_equal_one_process(tmp_path):
     # the mesh of "1 device per process" spans both processes: two devices in all
     order = [0, 2, 1]  # process 0 holds images 0 and 2, process 1 image 1
     joined = [np.concatenate([parts[0][k], parts[1][k]])[np.argsort(order)] for k in ("cost_1", "genome_1", "ends_1")]
-    one = run_worker(tmp_path, "one", "--mesh", "2", devices=2)
-    assert_same_fits(joined, fits(one, 2), cost_rtol=1e-6, genome_atol=1e-6, ends_atol=1e-6)
+    assert_same_fits(joined, fits(two_devices, 2), cost_rtol=1e-6, genome_atol=1e-6, ends_atol=1e-6)
 
 
 @pytest.mark.parametrize("bad, match", [

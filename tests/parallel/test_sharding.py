@@ -51,11 +51,6 @@ def fits(r, n):
     return r[f"cost_{n}"], r[f"genome_{n}"], r[f"ends_{n}"]
 
 
-@pytest.fixture(scope="module")
-def two_devices(tmp_path_factory):
-    return run_worker(tmp_path_factory.mktemp("sharding"), "two", "--mesh", "1", "2", "--single")
-
-
 def test_batch_on_two_devices_equals_one_device(two_devices):
     r = two_devices
     assert r["devices"] == 2
