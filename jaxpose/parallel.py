@@ -162,4 +162,69 @@ def fit_batch(clouds: Cloud, skeleton: Skeleton, keys, config: FitConfig = FitCo
     return res._replace(wall_time=np.full(B, time.perf_counter() - t0, np.float32))
 
 
-__all__ = ["AXIS", "device_mesh", "fit_batch", "local_devices", "padded_size"]
+def _island_shardings(mesh: Mesh, state, islands: int):
+    """Shardings of a :class:`~jaxpose.search.state.SearchState`: the island axis of
+    every per-island field split over the mesh, the shared fields replicated."""
+    from .search.state import SHARED
+
+    split, whole = NamedSharding(mesh, P(mesh.axis_names[0])), NamedSharding(mesh, P())
+    per_leaf = lambda x: split if x.ndim and x.shape[0] == islands else whole  # noqa: E731
+    return state._replace(**{name: jax.tree_util.tree_map(
+        (lambda x: whole) if name in SHARED else per_leaf, getattr(state, name)) for name in state._fields})
+
+
+_ISLAND_PROGRAMS: dict = {}
+
+
+def _island_program(config: FitConfig, mesh: Mesh):
+    from .search.loop import search_epoch, search_finish, search_init
+
+    key = (config.static(), mesh)
+    if key in _ISLAND_PROGRAMS:
+        return _ISLAND_PROGRAMS[key]
+    static = config.static()
+
+    def sharded_fit(cloud, skeleton, rng, params):
+        # fit()'s steps (jaxpose/search/loop.py) with the state's island axis split over
+        # the devices between epochs; XLA's SPMD partitioner keeps it split inside them
+        # and inserts the exchange that successive halving needs
+        st = search_init(cloud, skeleton, rng, static, params)
+        shardings = _island_shardings(mesh, st, static.islands)
+        constrain = lambda s: jax.lax.with_sharding_constraint(s, shardings)  # noqa: E731
+        st, hists = constrain(st), []
+        E, n_full = static.epoch, static.generations // static.epoch
+        if n_full:
+            st, h = jax.lax.scan(lambda s, _: (lambda o: (constrain(o[0]), o[1]))(search_epoch(skeleton, static, s, E)),
+                                 st, None, length=n_full)
+            hists.append(h.reshape(-1))
+        if len(static.epoch_lengths) > n_full:
+            st, h = search_epoch(skeleton, static, st, static.epoch_lengths[-1])
+            st = constrain(st)
+            hists.append(h)
+        return search_finish(cloud, skeleton, static, st, jax.numpy.concatenate(hists))
+
+    _ISLAND_PROGRAMS[key] = jax.jit(sharded_fit)
+    return _ISLAND_PROGRAMS[key]
+
+
+def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitConfig(),
+                mesh: Mesh | None = None, params: FitParams | None = None) -> FitResult:
+    """One fit with its islands split over the devices of ``mesh`` (default: this
+    process's devices); the same search as :func:`~jaxpose.search.fit`.
+
+    Islands are independent until successive halving, which copies the better half's
+    populations over the worse half's; XLA then exchanges them between devices.
+    ``config.islands`` must be a multiple of the mesh's size.  Returns the
+    :class:`FitResult` (JAX arrays, replicated)."""
+    config = config.validate().for_skeleton(skeleton)
+    params = config.params() if params is None else params
+    mesh = Mesh(np.array(local_devices()), (AXIS,)) if mesh is None else mesh
+    if len(mesh.axis_names) != 1 or config.islands % mesh.devices.size:
+        raise ConfigError(f"fit_islands: {config.islands} islands do not split over a one-axis mesh of "
+                          f"{mesh.devices.size} devices (the islands must be a multiple of the devices)")
+    cloud = Cloud(np.asarray(cloud.points, np.float32), np.asarray(cloud.weights, np.float32))
+    host = lambda tree: jax.tree_util.tree_map(np.asarray, tree)  # noqa: E731
+    return _island_program(config, mesh)(cloud, host(skeleton), key, host(params))
+
+
+__all__ = ["AXIS", "device_mesh", "fit_batch", "fit_islands", "local_devices", "padded_size"]

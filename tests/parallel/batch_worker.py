@@ -48,6 +48,7 @@ def main(argv=None) -> int:
     ap.add_argument("--images", type=int, nargs="+", default=list(range(IMAGES)))
     ap.add_argument("--refine", action="store_true")
     ap.add_argument("--single", action="store_true")
+    ap.add_argument("--islands", action="store_true", help="also the first image with its islands split over 2 devices")
     args = ap.parse_args(argv)
     distributed.check()
 
@@ -71,6 +72,19 @@ def main(argv=None) -> int:
         rs = [fit(c, skel, k, cfg) for c, k in zip(clouds, keys)]
         out.update({"single_cost": np.stack([r.cost for r in rs]), "single_genome": np.stack([r.genome for r in rs]),
                     "single_ends": np.stack([r.links.end for r in rs])})
+    if args.islands:
+        import re
+
+        from jaxpose.parallel import _island_program, fit_islands
+
+        mesh = device_mesh(2)
+        r = fit_islands(clouds[0], skel, keys[0], cfg, mesh)
+        out.update({"islands_cost": r.cost, "islands_genome": r.genome, "islands_ends": r.links.end})
+        host = lambda tree: jax.tree_util.tree_map(np.asarray, tree)  # noqa: E731
+        hlo = _island_program(cfg.for_skeleton(skel), mesh).lower(
+            clouds[0], host(skel), keys[0], host(cfg.params())).compile().as_text()
+        out["islands_exchanges"] = len(re.findall(r"(?:all-gather|all-to-all|collective-permute)\(", hlo))
+        out["islands_local_shapes"] = len(re.findall(rf"\[1,{cfg.population},", hlo))
     np.savez(args.out, **out)
     distributed.shutdown()
     return 0

@@ -68,6 +68,17 @@ def test_one_device_batch_equals_unsharded_fits(two_devices):
     assert np.min(np.abs(np.diff(np.sort(r["single_cost"])))) > 1e-3
 
 
+def test_islands_split_over_two_devices_give_the_unsharded_fit(two_devices):
+    """One fit, one island per device: successive halving (after generation 2 of 4) copies
+    the better island over the worse, across devices."""
+    r = two_devices
+    assert r["islands_exchanges"] > 0  # XLA exchanges islands between the devices
+    assert r["islands_local_shapes"] > 0  # each device holds one island's population
+    single = (r["single_cost"][0], r["single_genome"][0], r["single_ends"][0])
+    assert_same_fits((r["islands_cost"], r["islands_genome"], r["islands_ends"]), single,
+                     cost_rtol=1e-5, genome_atol=1e-4, ends_atol=1e-4)
+
+
 @pytest.mark.slow
 def test_refined_batch_on_two_devices_equals_one_device(tmp_path):
     r = run_worker(tmp_path, "refined", "--mesh", "1", "2", "--refine")
