@@ -6,6 +6,10 @@ Writes experiments/results/paper_table.{json,csv,md} and paper_figure.png (the
 paper's Figure 2: depth image, GA pose, hill-climbing pose).  Every finished fit is
 stored under experiments/results/runs/paper/ and skipped on a rerun, so an
 interrupted run resumes where it stopped.  See docs/experiments.md.
+
+With several devices or processes (or --devices / --batch) the fits of each row run
+as sharded batches over all of them (experiments/sharded.py, docs/scaling.md);
+process 0 writes the outputs.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import sys
 
 import common as C
 import numpy as np
+import sharded
 from outputs import log, pyplot, rel, save_figure, write_csv, write_json, write_text
 
 from jaxpose.camera import project
@@ -67,6 +72,7 @@ def parse_args(argv=None):
     ap.add_argument("--figure-images", type=int, default=2, help="example images per model in the figure")
     ap.add_argument("--data", default=C.DATA_DIR, help="data folder (default data/; made if missing)")
     ap.add_argument("--out", help="output folder (default experiments/results, --quick: experiments/results/quick)")
+    sharded.add_arguments(ap)
     args = ap.parse_args(argv)
     q = QUICK if args.quick else {"images": None, "seeds": 3, "population": None, "generations": None}
     args.images = C.parse_images_arg(args.images) if args.images else q["images"]
@@ -105,8 +111,12 @@ def run_fits(args, datasets, images, configs) -> tuple[dict, C.FitRunner]:
     log(f"{total} fits: models {', '.join(datasets)}; rows {', '.join(args.algorithms)}; seeds {seeds}; "
           + "; ".join(f"{m} {n}: P={c.population} G={c.generations}" for m in datasets for n, c in configs[m].items()))
     records: dict = {m: {n: [] for n in configs[m]} for m in datasets}
+    batches = sharded.BatchRunner(runner, args.devices, args.batch) if sharded.enabled(args) else None
     for m, ds in datasets.items():
         for name, cfg in configs[m].items():
+            if batches is not None:
+                records[m][name] = batches.run(ds, images[m], name, cfg, seeds)
+                continue
             for seed in seeds:
                 for entry in images[m]:
                     records[m][name].append(runner.run(ds, entry, name, cfg, seed))
@@ -261,6 +271,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         log(f"\ninterrupted: every finished fit is stored in {rel(RUNS)}; run the same command to resume")
         return 130
+    if not sharded.is_main_process():
+        return 0
     table = summarise(records, runner, datasets, configs)
     machine = C.machine_info()
     machines = sorted({r["machine"] for rows in records.values() for recs in rows.values() for r in recs})

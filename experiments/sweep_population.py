@@ -11,6 +11,11 @@ at a fixed wall-time budget, on a few images per model, several seeds.
 
 Writes experiments/results/sweep_population.{csv,json,png}.  Every finished fit is
 stored under experiments/results/runs/sweep/ and skipped on a rerun.
+
+With several devices or processes (or --devices / --batch) the fixed-evaluation fits
+run as sharded batches over all of them (experiments/sharded.py, docs/scaling.md);
+the fixed-wall-time mode times single fits, so it runs them one by one; process 0
+writes the outputs.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import sys
 
 import common as C
 import numpy as np
+import sharded
 from machine import machine_id
 from outputs import log, pyplot, rel, save_figure, write_csv, write_json
 
@@ -61,6 +67,7 @@ def parse_args(argv=None):
                          "outputs go to experiments/results/quick/")
     ap.add_argument("--data", default=C.DATA_DIR)
     ap.add_argument("--out", help="output folder (default experiments/results, --quick: experiments/results/quick)")
+    sharded.add_arguments(ap)
     args = ap.parse_args(argv)
     q = QUICK if args.quick else {"populations": POPULATIONS, "images": 4, "seeds": 3,
                                   "budget": d.population * DEFAULT_GENERATIONS}
@@ -113,8 +120,13 @@ class Sweep:
         self.runner = C.FitRunner(self.store, total)
         self.rows: list[dict] = []  # (mode, record) pairs as dicts
         self.plans: dict = {}
+        self.batches = sharded.BatchRunner(self.runner, args.devices, args.batch) if sharded.enabled(args) else None
 
     def fits(self, ds, algorithm, population, config, mode, extra) -> list[dict]:
+        if self.batches is not None and mode == "evals":  # the time mode times single fits
+            out = self.batches.run(ds, self.images[ds.model], f"{algorithm}-P{population}", config, self.seeds)
+            self.rows += [{"mode": mode, **extra, "record": rec} for rec in out]
+            return out
         out = []
         for seed in self.seeds:
             for entry in self.images[ds.model]:
@@ -274,6 +286,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         log(f"\ninterrupted: every finished fit is stored in {rel(RUNS)}; run the same command to resume")
         return 130
+    if not sharded.is_main_process():
+        return 0
     summary = aggregate(sweep)
     os.makedirs(args.out, exist_ok=True)
     paths = {x: os.path.join(args.out, f"sweep_population.{x}") for x in ("csv", "json", "png")}
