@@ -56,29 +56,56 @@ def device_mesh(devices_per_process: int | None = None, axis: str = AXIS) -> Mes
 _PROGRAMS: dict = {}
 
 
-def _program(config: FitConfig, mesh: Mesh):
+def _sharded(key, build, mesh: Mesh):
+    """``build()``'s per-device function ``(replicated, batched) -> outputs`` as one
+    program over ``mesh`` (``shard_map`` along its axis), cached by ``key`` and mesh."""
+    if (key, mesh) not in _PROGRAMS:
+        axis = mesh.axis_names[0]
+        # check_vma=False: the search's scans start from constants (replicated) and carry
+        # per-image values; every value here is per device, nothing is exchanged
+        _PROGRAMS[key, mesh] = jax.jit(jax.shard_map(build(), mesh=mesh, in_specs=(P(), P(axis)),
+                                                     out_specs=P(axis), check_vma=False))
+    return _PROGRAMS[key, mesh]
+
+
+def _fit_program(config: FitConfig, mesh: Mesh):
     """The batch's program for ``config``'s static part and the mesh (compiled by jit at
     its first call for each skeleton and shape).  ``config``'s traced settings are not
     read: the program takes them as ``params``, so one program serves every value."""
-    key = (config.static(), mesh)
-    if key not in _PROGRAMS:
-        _PROGRAMS[key] = _build(config, mesh)
-    return _PROGRAMS[key]
+    def build():
+        def local(replicated, batched):
+            skeleton, params = replicated
+            points, weights, key_data = batched
+            one = lambda c, k: fit(c, skeleton, k, config, params)  # noqa: E731
+            return jax.vmap(one)(Cloud(points, weights), jax.random.wrap_key_data(key_data))
+        return local
+
+    return _sharded(("fit", config.static()), build, mesh)
 
 
-def _build(config: FitConfig, mesh: Mesh):
-    axis = mesh.axis_names[0]
+def _run(program, mesh: Mesh, replicated, batched: list):
+    """``program`` on this process's rows ``batched`` (NumPy, leading axis ``B``),
+    padded to a whole number per device of the largest share over processes, and
+    ``replicated`` (the same on every device); returns this process's ``B`` rows."""
+    if len(mesh.axis_names) != 1:
+        raise ConfigError(f"a mesh with one axis, got axes {mesh.axis_names}")
+    B = len(batched[0])
+    local = [d for d in mesh.devices.flat if d.process_index == jax.process_index()]
+    n = padded_size(B, len(local))
+    sharding = NamedSharding(mesh, P(mesh.axis_names[0]))
+    args = [jax.make_array_from_process_local_data(sharding, _pad(np.ascontiguousarray(x), n)) for x in batched]
+    out = program(jax.tree_util.tree_map(np.asarray, replicated), args)
+    return jax.tree_util.tree_map(lambda x: _local_rows(x)[:B], out)
 
-    def local(skeleton, points, weights, key_data, params):
-        keys = jax.random.wrap_key_data(key_data)
-        one = lambda c, k: fit(c, skeleton, k, config, params)  # noqa: E731
-        return jax.vmap(one)(Cloud(points, weights), keys)
 
-    # check_vma=False: the search's scans start from constants (replicated) and carry
-    # per-image values; every value here is per device, nothing is exchanged
-    sharded = jax.shard_map(local, mesh=mesh, in_specs=(P(), P(axis), P(axis), P(axis), P()),
-                            out_specs=P(axis), check_vma=False)
-    return jax.jit(sharded)
+def _key_rows(keys, B: int) -> np.ndarray:
+    """``(B, ...)`` raw key data from ``B`` keys or one key for all."""
+    key_data = np.asarray(jax.random.key_data(keys))
+    if key_data.ndim == 1:  # one key for every item
+        key_data = np.broadcast_to(key_data, (B, *key_data.shape))
+    if len(key_data) != B:
+        raise ConfigError(f"{len(key_data)} keys for {B} inputs")
+    return key_data
 
 
 def _pad(x: np.ndarray, n: int) -> np.ndarray:
@@ -138,28 +165,51 @@ def fit_batch(clouds: Cloud, skeleton: Skeleton, keys, config: FitConfig = FitCo
     config = config.validate().for_skeleton(skeleton)
     params = config.params() if params is None else params
     mesh = device_mesh() if mesh is None else mesh
-    if len(mesh.axis_names) != 1:
-        raise ConfigError(f"fit_batch: a mesh with one axis, got axes {mesh.axis_names}")
     points = np.asarray(clouds.points, np.float32)
     weights = np.asarray(clouds.weights, np.float32)
     if points.ndim != 3 or points.shape[2] != 3 or weights.shape != points.shape[:2]:
         raise ConfigError(f"fit_batch: clouds of shape (B, N, 3) and weights (B, N), got {points.shape} "
                           f"and {weights.shape}")
-    B = len(points)
-    key_data = np.asarray(jax.random.key_data(keys))
-    if key_data.ndim == 1:  # one key for every image
-        key_data = np.broadcast_to(key_data, (B, *key_data.shape))
-    if len(key_data) != B:
-        raise ConfigError(f"fit_batch: {len(key_data)} keys for {B} clouds")
-    local = [d for d in mesh.devices.flat if d.process_index == jax.process_index()]
-    n = padded_size(B, len(local))
-    sharding = NamedSharding(mesh, P(mesh.axis_names[0]))
-    args = [jax.make_array_from_process_local_data(sharding, _pad(x, n))
-            for x in (points, weights, np.ascontiguousarray(key_data))]
-    host = lambda tree: jax.tree_util.tree_map(np.asarray, tree)  # noqa: E731 - replicated on every device
-    out = _program(config, mesh)(host(skeleton), *args, host(params))
-    res = jax.tree_util.tree_map(lambda x: _local_rows(x)[:B], out)
-    return res._replace(wall_time=np.full(B, time.perf_counter() - t0, np.float32))
+    res = _run(_fit_program(config, mesh), mesh, (skeleton, params), [points, weights, _key_rows(keys, len(points))])
+    return res._replace(wall_time=np.full(len(points), time.perf_counter() - t0, np.float32))
+
+
+def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh | None = None):
+    """Track several sequences at once, sharded over the devices of ``mesh`` as
+    :func:`fit_batch` shards images: :func:`jaxpose.tracking.track` vmapped over the
+    sequences.
+
+    Args:
+      clouds: ``points (S, T, N, 3)``, ``weights (S, T, N)``: this process's ``S``
+        sequences of ``T`` frames each.
+      skeleton: the model.
+      keys: ``(S,)`` random keys, or one key for every sequence.
+      config: a :class:`~jaxpose.tracking.TrackConfig` (default ``TrackConfig()``).
+      mesh: as for :func:`fit_batch`.
+
+    Returns:
+      The :class:`~jaxpose.tracking.step.TrackFrame` of every frame, leaves ``(S, T, ...)``
+      as NumPy arrays, in the order of ``clouds``.
+    """
+    from .tracking import TrackConfig, track
+
+    config = (TrackConfig() if config is None else config).validate().for_skeleton(skeleton)
+    mesh = device_mesh() if mesh is None else mesh
+    points = np.asarray(clouds.points, np.float32)
+    weights = np.asarray(clouds.weights, np.float32)
+    if points.ndim != 4 or points.shape[3] != 3 or weights.shape != points.shape[:3]:
+        raise ConfigError(f"track_batch: sequences of shape (S, T, N, 3) and weights (S, T, N), got "
+                          f"{points.shape} and {weights.shape}")
+
+    def build():
+        def local(skel, batched):
+            pts, w, key_data = batched
+            one = lambda c, k: track(c, skel, k, config)  # noqa: E731
+            return jax.vmap(one)(Cloud(pts, w), jax.random.wrap_key_data(key_data))
+        return local
+
+    program = _sharded(("track", config), build, mesh)
+    return _run(program, mesh, skeleton, [points, weights, _key_rows(keys, len(points))])
 
 
 def _island_shardings(mesh: Mesh, state, islands: int):
@@ -193,9 +243,12 @@ def _island_program(config: FitConfig, mesh: Mesh):
         constrain = lambda s: jax.lax.with_sharding_constraint(s, shardings)  # noqa: E731
         st, hists = constrain(st), []
         E, n_full = static.epoch, static.generations // static.epoch
+        def epoch(s, _):
+            s, h = search_epoch(skeleton, static, s, E)
+            return constrain(s), h
+
         if n_full:
-            st, h = jax.lax.scan(lambda s, _: (lambda o: (constrain(o[0]), o[1]))(search_epoch(skeleton, static, s, E)),
-                                 st, None, length=n_full)
+            st, h = jax.lax.scan(epoch, st, None, length=n_full)
             hists.append(h.reshape(-1))
         if len(static.epoch_lengths) > n_full:
             st, h = search_epoch(skeleton, static, st, static.epoch_lengths[-1])
@@ -227,4 +280,4 @@ def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitCo
     return _island_program(config, mesh)(cloud, host(skeleton), key, host(params))
 
 
-__all__ = ["AXIS", "device_mesh", "fit_batch", "fit_islands", "local_devices", "padded_size"]
+__all__ = ["AXIS", "device_mesh", "fit_batch", "fit_islands", "local_devices", "padded_size", "track_batch"]

@@ -254,7 +254,9 @@ def batched(args, jobs) -> bool:
     distributed.check()
     if args.batch is not None and args.batch < 1:
         raise ConfigError(f"--batch must be >= 1 image per device, got {args.batch}")
-    if args.devices is not None and not 1 <= args.devices <= jax.local_device_count():
+    if args.devices is not None and args.devices < 1:
+        raise ConfigError(f"--devices must be >= 1, got {args.devices}")
+    if args.devices is not None and args.devices > jax.local_device_count():
         raise ConfigError(f"--devices must lie within 1 .. {jax.local_device_count()} (this machine's "
                           f"{jax.devices()[0].platform.upper()} devices), got {args.devices}")
     if args.resume and args.out_dir is None:

@@ -48,6 +48,7 @@ def main(argv=None) -> int:
     ap.add_argument("--images", type=int, nargs="+", default=list(range(IMAGES)))
     ap.add_argument("--refine", action="store_true")
     ap.add_argument("--single", action="store_true")
+    ap.add_argument("--track", action="store_true", help="also 3 sequences of 3 frames tracked on 1 and 2 devices")
     ap.add_argument("--islands", action="store_true", help="also the first image with its islands split over 2 devices")
     args = ap.parse_args(argv)
     distributed.check()
@@ -72,6 +73,24 @@ def main(argv=None) -> int:
         rs = [fit(c, skel, k, cfg) for c, k in zip(clouds, keys)]
         out.update({"single_cost": np.stack([r.cost for r in rs]), "single_genome": np.stack([r.genome for r in rs]),
                     "single_ends": np.stack([r.links.end for r in rs])})
+    if args.track:
+        import dataclasses
+
+        from jaxpose.parallel import track_batch
+        from jaxpose.tracking import TrackConfig, track
+
+        tcfg = TrackConfig(fit=dataclasses.replace(cfg, generations=2), population=8, generations=2, refine_steps=2)
+        seqs = [[probe_cloud(10 * s + t, 60 + 5 * t) for t in range(3)] for s in range(3)]
+        stack = jax.tree_util.tree_map(lambda *x: np.stack(x), *[jax.tree_util.tree_map(lambda *y: np.stack(y), *q)
+                                                                 for q in seqs])
+        for n in (1, 2):
+            fr = track_batch(stack, skel, keys, tcfg, device_mesh(n))
+            out.update({f"track_cost_{n}": fr.result.cost, f"track_mode_{n}": fr.mode,
+                        f"track_ends_{n}": fr.result.links.end})
+        one = jax.jit(track, static_argnames="config")(jax.tree_util.tree_map(lambda x: x[1], stack), skel, keys[1],
+                                                       tcfg)
+        out.update({"track_single_cost": one.result.cost, "track_single_mode": one.mode,
+                    "track_single_ends": one.result.links.end})
     if args.islands:
         import re
 

@@ -92,3 +92,19 @@ def test_mesh_size_is_checked():
 
     with pytest.raises(ConfigError, match="devices must lie within 1 .. "):
         local_devices(len(local_devices()) + 1)
+
+
+@pytest.mark.slow
+def test_tracked_sequences_on_two_devices_equal_one_device_and_unsharded(tmp_path):
+    """Three sequences of three frames (jaxpose.parallel.track_batch): the same frames
+    tracked or searched globally, costs and capsule ends to round-off, on one and two
+    devices and against the unsharded track of the second sequence.  (About a minute
+    of compilation on two cores: slow.)"""
+    r = run_worker(tmp_path, "track", "--mesh", "1", "--track")
+    assert np.array_equal(r["track_mode_2"], r["track_mode_1"])
+    assert set(np.unique(r["track_mode_1"])) >= {0, 1}  # both the global search and tracking ran
+    np.testing.assert_allclose(r["track_cost_2"], r["track_cost_1"], rtol=1e-5)
+    np.testing.assert_allclose(r["track_ends_2"], r["track_ends_1"], atol=1e-4)
+    assert np.array_equal(r["track_single_mode"], r["track_mode_1"][1])
+    np.testing.assert_allclose(r["track_single_cost"], r["track_cost_1"][1], rtol=1e-5)
+    np.testing.assert_allclose(r["track_single_ends"], r["track_ends_1"][1], atol=1e-4)
