@@ -25,6 +25,7 @@ import numpy as np
 from machine import machine_info
 from outputs import log, rel, write_json
 
+from jaxpose.metrics import evaluate
 from jaxpose.objective import Cloud
 from jaxpose.parallel import device_mesh, fit_batch
 from jaxpose.search import FitConfig, fit_cloud
@@ -64,11 +65,16 @@ def main(argv=None) -> int:
             times.append(time.perf_counter() - t0)
         assert np.array_equal(np.asarray(res.cost), np.asarray(first.cost))  # warm runs repeat the cold one
         med = statistics.median(times)
+        pcp = [evaluate(np.asarray(res.links.start[i], np.float64), np.asarray(res.links.end[i], np.float64),
+                        img.truth["start"], img.truth["end"], ds.skeleton)["symmetric"]["pcp"]
+               for i, img in enumerate(images)]
         rows.append({"devices": n, "images": len(images), "cold_seconds": cold, "seconds": times,
                      "median_seconds": med, "images_per_second": len(images) / med,
+                     "costs": np.asarray(res.cost).tolist(), "link_accuracy": pcp,
                      "mean_cost": float(np.mean(res.cost))})
         log(f"{n:>3} device(s): {len(images)} images in {med:.2f} s (range {min(times):.2f}-{max(times):.2f}; "
-            f"cold {cold:.1f} s): {len(images) / med:.2f} images/s")
+            f"cold {cold:.1f} s): {len(images) / med:.2f} images/s; link accuracy {np.mean(pcp):.3f}, "
+            f"costs {' '.join(f'{c:.5f}' for c in rows[-1]['costs'])}")
     single = None
     if args.one_by_one:
         fit_cloud(images[0].cloud, ds.skeleton, 0, config)  # compiles

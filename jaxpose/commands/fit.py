@@ -256,12 +256,15 @@ def batched(args, jobs) -> bool:
         raise ConfigError(f"--batch must be >= 1 image per device, got {args.batch}")
     if args.devices is not None and args.devices < 1:
         raise ConfigError(f"--devices must be >= 1, got {args.devices}")
+    many = len(jobs) > 1 or jax.process_count() > 1
+    if args.devices is not None and args.devices > 1 and not many:
+        raise ConfigError(f"--devices {args.devices}: one input is fitted on one device (--devices shards batches "
+                          "of several inputs; jaxpose.parallel.fit_islands splits one fit's islands)")
     if args.devices is not None and args.devices > jax.local_device_count():
         raise ConfigError(f"--devices must lie within 1 .. {jax.local_device_count()} (this machine's "
                           f"{jax.devices()[0].platform.upper()} devices), got {args.devices}")
     if args.resume and args.out_dir is None:
         raise ConfigError("--resume works with --out-dir (it skips the results already in DIR)")
-    many = len(jobs) > 1 or jax.process_count() > 1
     one_by_one = [f for f, on in (("--hypotheses", args.hypotheses > 1), ("--time-budget", args.time_budget))
                   if on]
     if one_by_one and jax.process_count() > 1:
@@ -269,8 +272,8 @@ def batched(args, jobs) -> bool:
                           f"{jax.process_count()} processes")
     if one_by_one and args.devices is not None:
         raise ConfigError(f"--devices shards batches of inputs; {one_by_one[0]} fits one input at a time")
-    # a lone CPU gains nothing from batches (one fit keeps its cores busy), and one by
-    # one each result equals a run on that input alone (docs/scaling.md)
+    # one CPU device fits a batch no faster than one image after another (measured in
+    # docs/scaling.md), and one by one each result equals a run on that input alone
     lone_cpu = jax.device_count() == 1 and jax.devices()[0].platform == "cpu"
     explicit = args.devices is not None or args.batch is not None
     return many and not one_by_one and (explicit or not lone_cpu)
