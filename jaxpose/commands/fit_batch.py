@@ -17,7 +17,7 @@ import warnings
 import jax
 import numpy as np
 
-from ..errors import ConfigError, JaxposeError
+from ..errors import ConfigError
 
 
 def _agree(ok: bool, what: str) -> None:

@@ -75,3 +75,17 @@ def test_bad_settings(bad, match):
 
     with pytest.raises(ConfigError, match=match):
         settings(**bad)
+
+
+def test_a_bad_setting_in_the_environment_is_one_error_line(tmp_path):
+    """JAXPOSE_DISTRIBUTED=1 joins the run at import; a bad setting there surfaces as the
+    command's one-line error, not a traceback at import."""
+    env = forced_devices_env(1)
+    env.update(JAXPOSE_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS="nohost", JAX_NUM_PROCESSES="2", JAX_PROCESS_ID="0")
+    proc = subprocess.run([sys.executable, "-m", "jaxpose.cli", "fit", str(tmp_path / "a.npy"), "--skeleton", "spider",
+                           "--out", str(tmp_path / "a.json")], env=env, capture_output=True, text=True, timeout=120,
+                          check=False)
+    assert proc.returncode == 2
+    assert proc.stderr == ("jaxpose: error: JAXPOSE_DISTRIBUTED=1: coordinator 'nohost': give HOST:PORT "
+                           "(e.g. node0:8476)\n")
+    assert not (tmp_path / "a.json").exists()

@@ -94,6 +94,6 @@ def test_resume_skips_what_is_written(runs):
     ("devices_hypotheses", "jaxpose: error: --devices shards batches of inputs; --hypotheses fits one input"),
 ])
 def test_bad_options(runs, name, message):
-    d, log = runs
+    _, log = runs
     assert log[name]["rc"] == 2 and log[name]["err"].startswith(message) and log[name]["err"].count("\n") == 1
     assert log[name]["out"] == ""
