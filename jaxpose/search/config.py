@@ -129,6 +129,10 @@ class FitConfig:
     halve_islands_at: tuple[float, ...] = (1 / 3, 1 / 2, 2 / 3, 5 / 6)
     """Fractions of the generations after which the worse half of the islands takes
     over the better half's populations (successive halving)."""
+    halve_niche_deg: float = 0.0
+    """Niches in the halving (0: off): an island whose root orientation is more than
+    this many degrees from that of every better island leads a niche, and leaders are
+    kept before the rest, so one orientation cannot take every island early."""
     staged: float = 0.5
     """Trunk before limbs: links unlock level by level down the tree during the
     first ``staged`` fraction of the generations (0: all at once)."""
@@ -179,6 +183,7 @@ class FitConfig:
             raise ConfigError(f"scale_window must be > 1 (or 0 for the skeleton's range), got {self.scale_window}")
         if not all(isinstance(f, (int, float)) and 0.0 < f < 1.0 for f in self.halve_islands_at):
             raise ConfigError(f"halve_islands_at must hold fractions in (0, 1), got {self.halve_islands_at!r}")
+        within("halve_niche_deg", 0.0, 180.0)
         require_integer("coarse_points", self.coarse_points, 0)
         if self.coarse_points and self.algorithm != "ga":
             raise ConfigError(f"coarse_points works with the GA (algorithm 'ga') only, not {self.algorithm!r}")

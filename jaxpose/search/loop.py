@@ -147,7 +147,7 @@ def search_generations(skel: Skeleton, config: FitConfig, st: SearchState, lengt
     """:func:`~jaxpose.search.islands.halve_islands` (after the previous epoch's memetic
     step), the coarse-to-fine switch, then ``length`` generations (no refinement).
     Returns the new state and the best cost (over all islands) after each generation."""
-    st = rescore_at_switch(skel, config, halve_islands(config, st))
+    st = rescore_at_switch(skel, config, halve_islands(skel, config, st))
     return run_generations(skel, config, st, length)
 
 
