@@ -235,8 +235,9 @@ def _load_stack(path: str, depth_scale) -> np.ndarray:
 
 
 def frame_document(skel, skel_file, frame_result, mode: str, config, seed: int, inputs: dict, index: int,
-                   points: int, note: str | None) -> dict:
-    """``result.json``'s document for one frame, plus ``frame``, ``tracking``, ``points``."""
+                   cloud, note: str | None) -> dict:
+    """``result.json``'s document for one frame (with ``points``, the frame's points, as
+    ``fit`` writes them), plus ``frame`` and ``tracking``."""
     from ..io.fit_result import result_document
 
     r = frame_result
@@ -245,11 +246,11 @@ def frame_document(skel, skel_file, frame_result, mode: str, config, seed: int, 
         import jax.numpy as jnp
 
         r = r._replace(cost=jnp.float32(0), history=r.history[:0], genome=r.genome[:0])
-    doc = result_document(skel, skel_file, r, config.fit, seed, inputs)
+    doc = result_document(skel, skel_file, r, config.fit, seed, inputs, cloud)
+    points = len(doc["points"])
     doc["coordinates"] = doc.pop("frame")
     doc["frame"] = index
     doc["tracking"] = mode
-    doc["points"] = int(points)
     doc["tracking_config"] = {k: v for k, v in config.to_dict().items() if k != "fit"}
     if lost:
         for key in ("links", "params", "genome", "cost_history"):
@@ -442,8 +443,7 @@ def run(args: argparse.Namespace) -> int:
             if mode == "tracked":
                 tracked_times.append(wall)
             record = _input_record(f, options, k, cloud, stack_sha)
-            doc = frame_document(skel, skel_file, result, mode, config, args.seed, record, i,
-                                 int(tracker.last.points), note)
+            doc = frame_document(skel, skel_file, result, mode, config, args.seed, record, i, cloud, note)
             doc["skeleton"]["search_lengths"] = bool(args.search_lengths)
             doc["skeleton"]["max_capsules"] = capsules
             write_json(out, doc)

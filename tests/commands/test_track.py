@@ -67,9 +67,10 @@ def test_a_folder_is_tracked_frame_after_frame(sequence, tmp_path):
         assert doc["frame"] == i and doc["tracking"] == modes[i] and doc["schema"] == 1
         assert doc["cost"] == track["frames"][i]["cost"]
         if i in lost:
-            assert "links" not in doc and doc["cost"] is None and doc["points"] < 50
+            assert "links" not in doc and doc["cost"] is None and len(doc["points"]) < 50
         else:
             assert len(doc["links"]) == 8 and doc["input"]["depth"] == n + ".png"
+            assert len(doc["points"]) == doc["input"]["points_used"] >= 50
     import imageio.v3 as iio
 
     assert iio.imread(out / "overlay.gif").shape[:3] == (FRAMES, K.height, K.width)
