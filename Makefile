@@ -4,6 +4,10 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
+# robot files in joint configurations uniform over their ranges (hard poses, issue-style check)
+ROBOTS := tests/fixtures/ant.xml tests/fixtures/humanoid_lite.xml tests/fixtures/quadruped.urdf \
+	gymnasium:ant.xml gymnasium:humanoid.xml gymnasium:walker2d.xml
+
 .PHONY: demo test bench paper sweep data venv clean
 
 $(STAMP): pyproject.toml
@@ -29,8 +33,11 @@ data: $(STAMP)
 	$(BIN)/python experiments/make_data.py
 
 paper: $(STAMP)
+	$(BIN)/python -m pip install -q -e '.[models]'
 	$(BIN)/python experiments/paper_table.py
 	$(BIN)/python experiments/mujoco_views.py
+	$(BIN)/python experiments/mujoco_views.py --models $(ROBOTS) --spread uniform --views 20 --seed 1 \
+		--plots 2 --out experiments/results/mujoco_views_uniform
 	$(BIN)/python experiments/hard_poses.py
 	$(BIN)/python experiments/track_table.py
 

@@ -270,6 +270,38 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
     return records
 
 
+WHOLE_BODY_MISS = 0.25  # a view under this PCP is a whole-body miss (the body turned or placed wrong)
+
+
+def public_model(spec: str) -> str:
+    """``gymnasium:NAME.xml`` -> the MJCF file the installed ``gymnasium`` package ships
+    (MIT licence; found without importing it); any other ``spec`` is a path as given."""
+    if not spec.startswith("gymnasium:"):
+        return spec
+    import importlib.util
+
+    found = importlib.util.find_spec("gymnasium")
+    if found is None or not found.submodule_search_locations:
+        raise ValueError(f"{spec}: the 'gymnasium' package is not installed (pip install gymnasium)")
+    path = os.path.join(list(found.submodule_search_locations)[0], "envs", "mujoco", "assets", spec.split(":", 1)[1])
+    if not os.path.exists(path):
+        raise ValueError(f"{spec}: gymnasium ships no such model")
+    return path
+
+
+def spread_arg(text: str) -> float | None:
+    """``--spread``: a fraction of half each range, or ``uniform`` (over the whole range)."""
+    if text == "uniform":
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number or 'uniform', got {text!r}") from None
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return v
+
+
 def summary(records):
     rows = {}
     for r in records:
@@ -280,6 +312,7 @@ def summary(records):
         out.append({
             "model": name, "file": rs[0]["file"], "links": rs[0]["links"], "pcp_links": rs[0]["pcp_links"],
             "views": len(rs), "pcp": float(np.mean(pcps)) if pcps else None,
+            "whole_body_misses": sum(p < WHOLE_BODY_MISS for p in pcps),
             "pcp_10cm": float(np.mean([r["pcp_10cm"] for r in rs])),
             "pck_10cm": float(np.mean([r["pck_10cm"] for r in rs])),
             "frames_5cm": float(np.mean([r["frames_5cm"] for r in rs])),
@@ -290,16 +323,18 @@ def summary(records):
 
 
 def markdown(rows, machine: str) -> str:
-    lines = ["| model | links (PCP-scored) | views | PCP | PCP@10cm | PCK@10cm | frames@5cm | MPJPE (mm, median) "
-             "| s / view (median) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| model | links (PCP-scored) | views | PCP | whole-body misses | PCP@10cm | PCK@10cm | frames@5cm "
+             "| MPJPE (mm, median) | s / view (median) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         pcp = "-" if r["pcp"] is None else f"{100 * r['pcp']:.1f}%"
         lines.append(f"| {r['model']} | {r['links']} ({r['pcp_links']}) | {r['views']} | {pcp} | "
+                     f"{r['whole_body_misses']} | "
                      f"{100 * r['pcp_10cm']:.1f}% | {100 * r['pck_10cm']:.1f}% | {100 * r['frames_5cm']:.1f}% | "
                      f"{r['mpjpe_mm']:.0f} | "
                      f"{r['seconds_median']:.1f} |")
     return "\n".join(lines) + (f"\n\nMachine: {machine}. Symmetric scores (interchangeable links matched) but "
-                                "frames@5cm (strict; extra capsules left out).\n")
+                                f"frames@5cm (strict; extra capsules left out); a whole-body miss: PCP under "
+                                f"{100 * WHOLE_BODY_MISS:.0f}%.\n")
 
 
 def gl_problem() -> str | None:
@@ -329,10 +364,13 @@ def _at_least_one(text: str) -> int:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--models", nargs="+", default=MODELS, help="MJCF or URDF files (default: the test fixtures)")
+    ap.add_argument("--models", nargs="+", default=MODELS,
+                    help="MJCF or URDF files, or gymnasium:NAME.xml for a model the gymnasium package ships "
+                         "(default: the test fixtures)")
     ap.add_argument("--views", type=int, default=4, help="views (poses and cameras) per model (default 4)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--spread", type=float, default=0.3, help="joint spread, fraction of half the range")
+    ap.add_argument("--spread", type=spread_arg, default=0.3,
+                    help="joint spread, fraction of half the range, or 'uniform' over the whole range (default 0.3)")
     ap.add_argument("--generations", type=int, default=None, help="FitConfig.generations (default: automatic)")
     ap.add_argument("--capsules", type=_at_least_one, default=None,
                     help="capsules per link at most (load_skeleton's max_capsules; default: its default)")
@@ -354,14 +392,14 @@ def main(argv=None) -> int:
     for path in args.models:
         print(f"{os.path.basename(path)}:", flush=True)
         try:
-            records += run_model(os.path.abspath(path), args.views, args.seed, args.spread, config, args.out,
+            records += run_model(os.path.abspath(public_model(path)), args.views, args.seed, args.spread, config, args.out,
                                  plots=args.plots, max_capsules=args.capsules)
         except (jp.JaxposeError, ValueError) as e:  # e.g. a mesh MuJoCo cannot find: the others still run
             print(f"  skipped: {' '.join(str(e).split())[:200]}", flush=True)
     rows = summary(records)
     machine = machine_id()
     write_json(os.path.join(args.out, "mujoco_views.json"),
-               {"machine": machine_info(), "config": config.to_dict(), "spread": args.spread, "noise": NOISE,
+               {"machine": machine_info(), "config": config.to_dict(), "spread": "uniform" if args.spread is None else args.spread, "noise": NOISE,
                 "max_capsules": MAX_CAPSULES if args.capsules is None else args.capsules,
                 "summary": rows, "views": records})
     table = markdown(rows, machine)

@@ -107,3 +107,23 @@ def test_frames_score_counts_links_whose_frame_is_placed_right():
     assert MV.frames_score(skel, links, turned, o) == pytest.approx(5 / 6)
     assert MV.frames_score(skel, links, R, o + np.array([0.0, 0.06, 0.0])) == 0.0
     assert MV.frames_score(skel, links, R, o + np.array([0.0, 0.04, 0.0])) == 1.0  # within 5 cm
+
+
+def test_spread_argument_and_public_models():
+    import argparse
+
+    assert MV.spread_arg("uniform") is None and MV.spread_arg("0.5") == 0.5
+    for bad in ("0", "-1", "wide"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            MV.spread_arg(bad)
+    assert MV.public_model("tests/fixtures/ant.xml") == "tests/fixtures/ant.xml"
+    with pytest.raises(ValueError, match="gymnasium"):
+        MV.public_model("gymnasium:no_such_model.xml")
+
+
+def test_summary_counts_whole_body_misses():
+    base = {"model": "m", "file": "m.xml", "links": 3, "pcp_links": 3, "pcp_10cm": 1.0, "pck_10cm": 1.0,
+            "frames_5cm": 1.0, "mpjpe_mm": 5.0, "seconds": 1.0}
+    rows = MV.summary([{**base, "pcp": p} for p in (1.0, 0.2, 0.0, 0.25, None)])
+    assert rows[0]["whole_body_misses"] == 2 and rows[0]["views"] == 5
+    assert "| 2 |" in MV.markdown(rows, "test machine")
