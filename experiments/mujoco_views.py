@@ -392,14 +392,15 @@ def main(argv=None) -> int:
     for path in args.models:
         print(f"{os.path.basename(path)}:", flush=True)
         try:
-            records += run_model(os.path.abspath(public_model(path)), args.views, args.seed, args.spread, config, args.out,
-                                 plots=args.plots, max_capsules=args.capsules)
+            records += run_model(os.path.abspath(public_model(path)), args.views, args.seed, args.spread, config,
+                                 args.out, plots=args.plots, max_capsules=args.capsules)
         except (jp.JaxposeError, ValueError) as e:  # e.g. a mesh MuJoCo cannot find: the others still run
             print(f"  skipped: {' '.join(str(e).split())[:200]}", flush=True)
     rows = summary(records)
     machine = machine_id()
     write_json(os.path.join(args.out, "mujoco_views.json"),
-               {"machine": machine_info(), "config": config.to_dict(), "spread": "uniform" if args.spread is None else args.spread, "noise": NOISE,
+               {"machine": machine_info(), "config": config.to_dict(), "noise": NOISE,
+                "spread": "uniform" if args.spread is None else args.spread,
                 "max_capsules": MAX_CAPSULES if args.capsules is None else args.capsules,
                 "summary": rows, "views": records})
     table = markdown(rows, machine)
