@@ -556,9 +556,10 @@ def stored_records(sets, count: int, seed: int = 0, draw: str = "tuning") -> lis
     return [newest[(s, f"{s}{i:03d}")] for i in range(count) for s in sets if (s, f"{s}{i:03d}") in newest]
 
 
-def summary_name(draw: str, config) -> str:
-    """The summary's file stem: ``diagnosis`` (tuning draw, default config), else the draw and
-    the settings that differ from the default (``reference``, ``tuning-islands=64``, ...)."""
+def summary_name(draw: str, config, seed: int = 0) -> str:
+    """The summary's file stem: ``diagnosis`` (tuning draw, default config, seed 0), else the draw,
+    the settings that differ from the default and the seed (``reference``, ``diagnosis-islands=64``,
+    ``diagnosis-seed1``, ...)."""
     from jaxpose.search import FitConfig
 
     def flat(c):
@@ -569,7 +570,7 @@ def summary_name(draw: str, config) -> str:
     default, now = flat(FitConfig()), flat(config)
     changed = [f"{k}={v}" for k, v in sorted(now.items()) if default.get(k) != v]
     stem = "diagnosis" if draw == "tuning" else draw
-    return "-".join([stem, *changed]) if changed else stem
+    return "-".join([stem, *changed, *([f"seed{seed}"] if seed else [])])
 
 
 def write_summary(records: list[dict], config, seed: int, out_dir: str = OUT_DIR, draw: str = "tuning") -> dict:
@@ -578,7 +579,7 @@ def write_summary(records: list[dict], config, seed: int, out_dir: str = OUT_DIR
 
     summary = summarise(records)
     os.makedirs(out_dir, exist_ok=True)
-    stem = summary_name(draw, config)
+    stem = summary_name(draw, config, seed)
     common.write_json(os.path.join(out_dir, f"{stem}.json"),
                       {"machine": common.machine_info(), "config": config.to_dict(), "seed": seed,
                        "cost_margin": COST_MARGIN, "visible": VISIBLE, "penetration_m": PENETRATION,

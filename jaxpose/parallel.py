@@ -264,7 +264,8 @@ def _island_program(config: FitConfig, mesh: Mesh):
 def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitConfig(),
                 mesh: Mesh | None = None, params: FitParams | None = None) -> FitResult:
     """One fit with its islands split over the devices of ``mesh`` (default: this
-    process's devices); the same search as :func:`~jaxpose.search.fit`.
+    process's devices); the same searches as :func:`~jaxpose.search.fit` (a portfolio's
+    one after another).
 
     Islands are independent until successive halving, which copies the better half's
     populations over the worse half's; XLA then exchanges them between devices.
@@ -276,9 +277,16 @@ def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitCo
     if len(mesh.axis_names) != 1 or config.islands % mesh.devices.size:
         raise ConfigError(f"fit_islands: {config.islands} islands do not split over a one-axis mesh of "
                           f"{mesh.devices.size} devices (the islands must be a multiple of the devices)")
+    from .search.loop import cheapest, portfolio_keys
+
     cloud = Cloud(np.asarray(cloud.points, np.float32), np.asarray(cloud.weights, np.float32))
     host = lambda tree: jax.tree_util.tree_map(np.asarray, tree)  # noqa: E731
-    return _island_program(config, mesh)(cloud, host(skeleton), key, host(params))
+    program = _island_program(config, mesh)
+    # the portfolio's searches one after another, as Fitter.run runs them
+    results = [program(cloud, host(skeleton), k, host(p))
+               for k, p in zip(portfolio_keys(key, config.searches), config.search_params(params))]
+    return results[0] if len(results) == 1 else cheapest(jax.tree_util.tree_map(lambda *x: jax.numpy.stack(x),
+                                                                                  *results))
 
 
 __all__ = ["AXIS", "device_mesh", "fit_batch", "fit_islands", "local_devices", "padded_size", "track_batch"]

@@ -60,6 +60,9 @@ def register(sub) -> None:
                    help="one length for alike links (left and right, a spider's legs; "
                         "default: each searched on its own)")
     p.add_argument("--no-refine", action="store_true", help="no gradient refinement (memetic or final)")
+    p.add_argument("--one-search", action="store_true",
+                   help="the staged search alone, not the portfolio of it and a search without staging "
+                        "(half the time; folded and crossed limbs are placed less often)")
     p.add_argument("--time-budget", type=float, metavar="SECONDS",
                    help="anytime fit: end the search after the epoch in which this many seconds of search "
                         "(compilation excluded) have passed, then refine and write the best as usual")
@@ -147,6 +150,8 @@ def config_from_args(args) -> FitConfig:
     )
     if args.no_refine:
         cfg = dataclasses.replace(cfg, memetic_steps=0, final_refine_steps=0)
+    if args.one_search:
+        cfg = dataclasses.replace(cfg, staged_alternatives=())
     with as_flags():
         _input_values(args).validate()
         return cfg.validate()
@@ -318,7 +323,7 @@ def run(args: argparse.Namespace) -> int:
             check_input(path, per_input[path])
     for i, (path, result, plot) in enumerate(jobs):
         label = f"{i + 1}/{len(jobs)} {os.path.basename(path)} " if len(jobs) > 1 else ""
-        bar = ProgressBar(config.generations, quiet=args.quiet, label=label)
+        bar = ProgressBar(config.generations * config.searches, quiet=args.quiet, label=label)
         try:
             with warnings.catch_warnings():
                 warnings.showwarning = _show_input_warning

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import os
 import sys
-import time
 
 import numpy as np
 
@@ -64,6 +62,8 @@ def register(sub) -> None:
     g.add_argument("--coarse-points", type=int, default=FitConfig.coarse_points)
     g.add_argument("--tie-lengths", action="store_true", help="one length for alike links")
     g.add_argument("--no-refine", action="store_true", help="no gradient refinement in the global search")
+    g.add_argument("--one-search", action="store_true",
+                   help="the global search: the staged search alone, not the portfolio (half the time)")
     g.add_argument("--sigma-factor", type=float, default=ObjectiveConfig.sigma_factor)
     g.add_argument("--free-space-weight", type=float, default=ObjectiveConfig.free_space_weight)
     g.add_argument("--collision-weight", type=float, default=ObjectiveConfig.collision_weight)
@@ -435,7 +435,7 @@ def run(args: argparse.Namespace) -> int:
             label = f"frame {i + 1}/{len(frames)}"
 
             def progress(gen, best, evals, label=label):
-                bar.show(f"{label}  global search: generation {gen}/{config.fit.generations}", i)
+                bar.show(f"{label}  global search: generation {gen}/{config.fit.generations * config.fit.searches}", i)
 
             bar.show(f"{label}  {_fps_text(tracked_times)}", i)
             result = tracker.update(cloud, progress)

@@ -25,7 +25,8 @@ from ..errors import ConfigError, require_finite, require_integer
 from .coarse import coarse_switch, rescore_all
 from .config import FitConfig, FitParams
 from .hypotheses import hypotheses as distinct_hypotheses
-from .loop import EpochSteps, evaluation_counts, search_epoch, search_generations, search_init, search_result
+from .loop import (EpochSteps, cheapest, evaluation_counts, portfolio_keys, search_epoch, search_generations,
+                   search_init, search_result)
 from .memetic import final_refine, memetic_apply, refine_top
 from .state import FitResult, SearchState
 
@@ -160,11 +161,13 @@ class Fitter:
     def epoch_lengths(self) -> tuple[int, ...]:
         return self.config.epoch_lengths
 
-    def init(self, cloud: Cloud, key: jax.Array) -> SearchState:
-        """The initial state for ``cloud`` (compiles the programs on the first use of its signature)."""
+    def init(self, cloud: Cloud, key: jax.Array, params: FitParams | None = None) -> SearchState:
+        """The initial state for ``cloud`` (compiles the programs on the first use of its signature);
+        ``params``: the traced settings (default the config's; a portfolio's search passes its own)."""
         cloud = as_float32(cloud)
-        self._compiled = self._cache.get(cloud, self.skeleton, key, self._static, self.params)
-        return self._compiled.init(cloud, self.skeleton, key, params=self.params)
+        params = self.params if params is None else params
+        self._compiled = self._cache.get(cloud, self.skeleton, key, self._static, params)
+        return self._compiled.init(cloud, self.skeleton, key, params=params)
 
     def _programs(self) -> CompiledSearch:
         if self._compiled is None:
@@ -189,19 +192,46 @@ class Fitter:
 
     def run(self, cloud: Cloud, key: jax.Array, progress=None, hypotheses: int = 1,
             time_budget: float | None = None) -> FitResult:
-        """A whole fit; ``progress(generation, best_cost, evaluations)`` after every epoch.
+        """A whole fit; ``progress(generation, best_cost, evaluations)`` after every epoch
+        (with a portfolio, :attr:`FitConfig.staged_alternatives`, the generations of
+        all its searches in a row, up to ``generations * searches``).
 
-        ``hypotheses > 1``: also the best distinct poses the islands found
-        (:func:`~jaxpose.search.hypotheses.hypotheses`), in ``FitResult.hypotheses``.
-        ``time_budget`` (seconds of search, compilation excluded): an anytime fit that
-        ends after the epoch in which the budget runs out, then refines and returns
-        its best as usual; the history's generations not run repeat its last cost,
-        and the evaluation counts are those made."""
+        The searches of the portfolio run one after another with the same programs;
+        the cheapest answer is returned, with the evaluations of all of them.
+        ``hypotheses > 1``: also the best distinct poses the islands of the chosen
+        search found (:func:`~jaxpose.search.hypotheses.hypotheses`), in ``FitResult.hypotheses``.
+        ``time_budget`` (seconds of search, compilation excluded): an anytime fit in which
+        each search ends after the epoch in which its share of the budget runs out, then
+        refines and returns its best as usual; the history's generations not run repeat
+        its last cost, and the evaluation counts are those made."""
         require_integer("hypotheses", hypotheses, 1)
         if time_budget is not None and not require_finite("time_budget", time_budget) > 0:
             raise ConfigError(f"time_budget must be > 0 seconds, got {time_budget}")
         t0 = time.perf_counter()
-        st = self.init(cloud, key)
+        n, G = self.config.searches, self.config.generations
+        share = None if time_budget is None else time_budget / n
+        results, states, best, evals = [], [], float("inf"), 0
+        for i, (k, params) in enumerate(zip(portfolio_keys(key, n), self.config.search_params(self.params))):
+            report = None
+            if progress is not None:
+                def report(gen, cost, e, i=i, best=best, evals=evals):
+                    progress(i * G + gen, min(best, cost), evals + e)
+            res, st = self._search(cloud, k, params, report, share)
+            results.append(res)
+            states.append(st)
+            best = min(best, float(res.cost))
+            evals += int(res.objective_evaluations) + int(res.gradient_evaluations)
+        res = results[0] if n == 1 else cheapest(jax.tree_util.tree_map(lambda *x: jnp.stack(x), *results))
+        if hypotheses > 1:
+            chosen = int(jnp.argmin(jnp.asarray([jnp.nan_to_num(r.cost, nan=jnp.inf) for r in results])))
+            res = res._replace(hypotheses=distinct_hypotheses(
+                self.skeleton, self._static, states[chosen], results[chosen], hypotheses))
+        res = jax.block_until_ready(res)
+        return res._replace(wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32))
+
+    def _search(self, cloud: Cloud, key: jax.Array, params: FitParams, progress, time_budget):
+        """One search of the portfolio: its :class:`FitResult` and final state."""
+        st = self.init(cloud, key, params)
         hists, gen, t_search = [], 0, time.perf_counter()
         for length in self.epoch_lengths:
             st, h = self.step(st, length)
@@ -217,12 +247,7 @@ class Fitter:
             hists.append(jnp.full((self.config.generations - gen,), hists[-1][-1]))
             if (switch := coarse_switch(self._static, cloud.points.shape[0])) is not None and gen <= switch:
                 st = rescore_jit(self.skeleton, self._static, st)  # costs on every point, as a full fit's
-        res = self.finish(st, jnp.concatenate(hists))
-        if hypotheses > 1:
-            res = res._replace(hypotheses=distinct_hypotheses(
-                self.skeleton, self._static, st, res, hypotheses))
-        res = jax.block_until_ready(res)
-        return res._replace(wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32))
+        return self.finish(st, jnp.concatenate(hists)), st
 
 
 def fit_cloud(cloud: Cloud, skeleton: Skeleton, seed: int = 0, config: FitConfig = FitConfig(),

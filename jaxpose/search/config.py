@@ -34,7 +34,7 @@ def auto_generations(skel: Skeleton, epoch: int = 25) -> int:
 
 # FitConfig's fields that are traced (FitParams), and ObjectiveConfig's.
 TRACED = ("crossover_rate", "mutation_rate", "branch_mutation_rate", "branch_reset_rate", "learning_rate",
-          "init_root_std", "init_pca_std")
+          "init_root_std", "init_pca_std", "staged")
 TRACED_OBJECTIVE = ("sigma_factor", "free_space_weight", "collision_weight")
 
 
@@ -53,6 +53,7 @@ class FitParams:
     learning_rate: jnp.ndarray
     init_root_std: jnp.ndarray
     init_pca_std: jnp.ndarray
+    staged: jnp.ndarray
     sigma_factor: jnp.ndarray
     free_space_weight: jnp.ndarray
     collision_weight: jnp.ndarray
@@ -62,9 +63,9 @@ class FitParams:
 class FitConfig:
     """Search settings (hashable), each documented below its field.
 
-    The rates, ``learning_rate``, the initial spreads and the objective's
+    The rates, ``learning_rate``, the initial spreads, ``staged`` and the objective's
     ``sigma_factor`` and positive weights are traced (:class:`FitParams`): changing
-    them reuses the compiled search.  See docs/search.md.
+    them reuses the compiled search (so the portfolio's searches share one).  See docs/search.md.
     """
 
     algorithm: str = "ga"
@@ -136,6 +137,12 @@ class FitConfig:
     staged: float = 0.5
     """Trunk before limbs: links unlock level by level down the tree during the
     first ``staged`` fraction of the generations (0: all at once)."""
+    staged_alternatives: tuple[float, ...] = (0.0,)
+    """A portfolio of searches: after the search, one more for each value here, with
+    ``staged`` set to it and a key of its own (the same compiled programs); the
+    cheapest answer of all is the fit's.  Staging places natural poses better and
+    misleads on folded and crossed limbs, where the search without it finds the pose
+    (docs/search.md, "Portfolio"); ``()``: one search."""
     coarse_points: int = 0
     """Coarse-to-fine (GA only; 0: off): score on this many points only, until
     ``coarse_until`` of the generations."""
@@ -148,6 +155,8 @@ class FitConfig:
 
     def __post_init__(self):  # a list (from JSON, say) would not be hashable
         object.__setattr__(self, "halve_islands_at", tuple(self.halve_islands_at))
+        if isinstance(self.staged_alternatives, (list, tuple)):
+            object.__setattr__(self, "staged_alternatives", tuple(self.staged_alternatives))
 
     def validate(self) -> "FitConfig":
         """Raise :class:`ConfigError` naming the first impossible setting; return ``self``."""
@@ -184,6 +193,10 @@ class FitConfig:
         if not all(isinstance(f, (int, float)) and 0.0 < f < 1.0 for f in self.halve_islands_at):
             raise ConfigError(f"halve_islands_at must hold fractions in (0, 1), got {self.halve_islands_at!r}")
         within("halve_niche_deg", 0.0, 180.0)
+        if not isinstance(self.staged_alternatives, tuple) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0
+                for v in self.staged_alternatives):
+            raise ConfigError(f"staged_alternatives must hold fractions in [0, 1], got {self.staged_alternatives!r}")
         require_integer("coarse_points", self.coarse_points, 0)
         if self.coarse_points and self.algorithm != "ga":
             raise ConfigError(f"coarse_points works with the GA (algorithm 'ga') only, not {self.algorithm!r}")
@@ -205,6 +218,15 @@ class FitConfig:
     @property
     def memetic_on(self) -> bool:
         return self.algorithm == "ga" and self.memetic_top > 0 and self.memetic_steps > 0
+
+    @property
+    def searches(self) -> int:
+        """Searches a fit runs: the search and its :attr:`staged_alternatives`."""
+        return 1 + len(self.staged_alternatives)
+
+    def search_params(self, params: FitParams) -> list[FitParams]:
+        """The traced settings of each search of the portfolio (``params``, then one per alternative)."""
+        return [params] + [params.replace(staged=jnp.asarray(v, jnp.float32)) for v in self.staged_alternatives]
 
     @property
     def final_refine_on(self) -> bool:

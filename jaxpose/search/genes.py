@@ -20,14 +20,14 @@ def gene_levels(skel: Skeleton) -> np.ndarray:
     return np.where(link >= 0, depth[np.maximum(link, 0)], -1)
 
 
-def unlocked(skel: Skeleton, config: FitConfig, generation) -> jax.Array:
-    """Boolean ``(D,)``: the genes searched at ``generation`` (``FitConfig.staged``:
-    links at depth ``d`` join after ``d / levels`` of the staged phase)."""
-    levels = gene_levels(skel)
-    if config.staged <= 0:
-        return jnp.ones(levels.shape, bool)
-    phase = config.staged * config.generations / len(skel.levels)
-    return jnp.asarray(levels) <= jnp.floor(generation / phase)
+def unlocked(skel: Skeleton, config: FitConfig, generation, staged=None) -> jax.Array:
+    """Boolean ``(D,)``: the genes searched at ``generation`` (``staged``, traced, default
+    ``config.staged``: links at depth ``d`` join after ``d / levels`` of the staged phase;
+    0: every gene at once)."""
+    levels = jnp.asarray(gene_levels(skel))
+    staged = config.staged if staged is None else staged
+    phase = staged * config.generations / len(skel.levels)
+    return (levels <= jnp.floor(generation / jnp.where(phase > 0, phase, 1.0))) | (phase <= 0)
 
 
 def length_orbits(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
@@ -55,12 +55,11 @@ def tie_lengths(skel: Skeleton, genomes):
     return genomes.at[..., genes].set(mean[..., orbit])
 
 
-def lock(skel: Skeleton, config: FitConfig, bounds: Bounds, generation, genomes):
-    """Genes locked at ``generation`` (staged search) set to their rest values; with
-    ``tie_lengths`` the length genes of alike links set to their mean."""
+def lock(skel: Skeleton, config: FitConfig, bounds: Bounds, generation, genomes, staged):
+    """Genes locked at ``generation`` (staged search; ``staged``: the traced
+    :attr:`FitParams.staged`) set to their rest values; with ``tie_lengths`` the
+    length genes of alike links set to their mean."""
     if config.tie_lengths:
         genomes = tie_lengths(skel, genomes)
-    if config.staged <= 0:
-        return genomes
     rest = encode(skel, bounds, rest_pose(skel))
-    return jnp.where(unlocked(skel, config, generation), genomes, rest)
+    return jnp.where(unlocked(skel, config, generation, staged), genomes, rest)

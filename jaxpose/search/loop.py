@@ -83,7 +83,8 @@ def _init_island(skel: Skeleton, config: FitConfig, shared: dict, rest: RestMode
     obs, bounds, params = (shared[n] for n in SHARED)
     algo, algo_params = make_algorithm(skel, config, params)
     k_pop, k_init, k_run = keys
-    pop0 = lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config, params, rest))
+    pop0 = lock(skel, config, bounds, 0, initial_population(k_pop, skel, obs, bounds, config, params, rest),
+                params.staged)
     unknown = jnp.full(pop0.shape[:1], jnp.inf, pop0.dtype)
     state = start_algorithm(algo, algo_params, k_init, pop0, unknown).replace(generation_counter=0)
     zero = jnp.asarray(0, jnp.int32)
@@ -121,7 +122,8 @@ def run_generations(skel: Skeleton, config: FitConfig, st: SearchState, length: 
     def ask(state, key, initial, first):
         key, k_ask, k_tell = jax.random.split(key, 3)
         pop, asked = algo.ask(k_ask, state, algo_params)
-        return jnp.where(first, initial, lock(skel, config, st.bounds, state.generation_counter, pop)), asked, key, \
+        return jnp.where(first, initial, lock(skel, config, st.bounds, state.generation_counter, pop,
+                                               st.params.staged)), asked, key, \
             k_tell
 
     def tell(k_tell, pop, fitness, asked, first):
@@ -217,21 +219,25 @@ def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
     return search_result(cloud, skel, config, st, history, final_refine(skel, config, st))
 
 
-def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = FitConfig(),
-        params: FitParams | None = None) -> FitResult:
-    """Search ``skeleton``'s parameters that best explain ``cloud`` (camera frame).
+def cheapest(results: FitResult) -> FitResult:
+    """The portfolio's answer: of ``results`` (a :class:`FitResult` whose leaves have a
+    leading axis, one row per search) the cheapest row (NaN costs last), with the
+    evaluation counts of all rows summed."""
+    cost = jnp.where(jnp.isnan(results.cost), jnp.inf, results.cost)
+    best = jax.tree_util.tree_map(lambda x: x[jnp.argmin(cost)], results)
+    total = lambda x: jnp.sum(x, axis=0)  # noqa: E731
+    return best._replace(objective_evaluations=total(results.objective_evaluations),
+                         gradient_evaluations=total(results.gradient_evaluations),
+                         distance_evaluations=total(results.distance_evaluations))
 
-    Pure and jit-compatible (``config`` is static); vmappable over clouds and keys::
 
-        fit_jit = jax.jit(fit, static_argnames="config")
-        batch = jax.vmap(fit_jit, in_axes=(0, None, 0, None))(clouds, skel, keys, config)
+def portfolio_keys(key: jax.Array, searches: int) -> list:
+    """Each search's key: ``key`` for the first (so a one-search fit is unchanged), then ``fold_in(key, i)``."""
+    return [key] + [jax.random.fold_in(key, i) for i in range(1, searches)]
 
-    ``params`` (default ``config.params()``) are the traced settings: pass them to
-    sweep rates or weights under one compiled program (even vmapped over them).
-    """
-    config = config.validate().for_skeleton(skeleton)
-    params = config.params() if params is None else params
-    config = config.static()
+
+def single_search(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig, params: FitParams) -> FitResult:
+    """One search of a resolved, static ``config`` with the traced ``params``: start, epochs, finish."""
     st = search_init(cloud, skeleton, key, config, params)
     lengths = config.epoch_lengths
     E, n_full = config.epoch, config.generations // config.epoch
@@ -243,3 +249,29 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
         st, h = search_epoch(skeleton, config, st, lengths[-1])
         hists.append(h)
     return search_finish(cloud, skeleton, config, st, jnp.concatenate(hists))
+
+
+def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = FitConfig(),
+        params: FitParams | None = None) -> FitResult:
+    """Search ``skeleton``'s parameters that best explain ``cloud`` (camera frame).
+
+    Pure and jit-compatible (``config`` is static); vmappable over clouds and keys::
+
+        fit_jit = jax.jit(fit, static_argnames="config")
+        batch = jax.vmap(fit_jit, in_axes=(0, None, 0, None))(clouds, skel, keys, config)
+
+    ``params`` (default ``config.params()``) are the traced settings: pass them to
+    sweep rates or weights under one compiled program (even vmapped over them).
+    With ``config.staged_alternatives`` the searches of the portfolio run one after
+    another (``lax.map``: one traced search) and the cheapest answer is returned.
+    """
+    config = config.validate().for_skeleton(skeleton)
+    params = config.params() if params is None else params
+    searches = config.searches
+    every = config.search_params(params)
+    config = config.static()
+    if searches == 1:
+        return single_search(cloud, skeleton, key, config, params)
+    stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *every)
+    keys = jnp.stack(portfolio_keys(key, searches))
+    return cheapest(jax.lax.map(lambda kp: single_search(cloud, skeleton, kp[0], config, kp[1]), (keys, stacked)))

@@ -77,7 +77,8 @@ def refine_rows(skel: Skeleton, config: FitConfig, st: SearchState, rows, steps)
     locked at the current generation stay locked.  Returns the best iterates and their costs."""
     gen = st.algo_state.generation_counter.reshape(-1)[0]
     pop_cost = population_cost_fn(skel, config, st)
-    return refine(lambda G: pop_cost(lock(skel, config, st.bounds, gen, G)), rows, steps, st.params.learning_rate)
+    return refine(lambda G: pop_cost(lock(skel, config, st.bounds, gen, G, st.params.staged)), rows, steps,
+                  st.params.learning_rate)
 
 
 def keep_better(g, f, best_g, best_f):
@@ -91,7 +92,7 @@ def _memetic_apply_island(skel: Skeleton, config: FitConfig, st: SearchState, or
     """Write refined individuals back into one island's population (and its best so far)."""
     state = st.algo_state
     best_g, best_f = keep_better(g, f, state.best_solution, state.best_fitness)
-    locked = partial(lock, skel, config, st.bounds, state.generation_counter)
+    locked = partial(lock, skel, config, st.bounds, state.generation_counter, staged=st.params.staged)
     state = state.replace(
         population=locked(state.population.at[order].set(g)),
         fitness=state.fitness.at[order].set(f),

@@ -182,13 +182,14 @@ def test_fit_on_a_terminal_shows_the_bar(scene, capsys, monkeypatch, clock):
     m = LINE.match(lines[-1])
     assert m, lines[-1]
     hashes, dashes, gen, total, best, rate = m.groups()
-    assert (int(gen), int(total)) == (10, 10) and dashes == ""
+    # the default portfolio's two searches of 10 generations, one after the other
+    assert (int(gen), int(total)) == (20, 20) and dashes == ""
     # the best cost after the last generation, as in the result's history (no refinement)
     assert float(best) == pytest.approx(doc["cost_history"][-1], abs=5e-6)
     # one update per compiled chunk, each one fake second after the previous clock reading:
-    # the last rate is the evaluation count, 32 * 10 as in result.json, over len(lines) s
+    # the last rate is the evaluation count, 2 * 32 * 10 as in result.json, over len(lines) s
     evaluations = doc["evaluations"]["objective"] + doc["evaluations"]["gradient"]
-    assert evaluations == 32 * 10  # 10 generations of 32, the first the initial population
+    assert evaluations == 2 * 32 * 10  # two searches of 10 generations of 32, the first the initial population
     assert int(rate.replace(",", "")) == round(evaluations / len(lines))
     for line in lines[:-1]:
         assert LINE.match(line)

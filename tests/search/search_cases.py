@@ -49,7 +49,7 @@ OBJ = ObjectiveConfig(free_space_grid=16, block=64)
 # memetic_top above the population: clamped to it
 GA = FitConfig(
     algorithm="ga", population=16, generations=4, epoch=2, memetic_top=20, memetic_steps=2,
-    final_refine_top=20, final_refine_steps=3, islands=1, objective=OBJ,
+    final_refine_top=20, final_refine_steps=3, islands=1, objective=OBJ, staged_alternatives=(),
 )
 # no refinement: the plain search budget, population * generations
 GA_PLAIN = dataclasses.replace(GA, epoch=4, memetic_steps=0, final_refine_steps=0)
@@ -57,13 +57,15 @@ ISLANDS = dataclasses.replace(GA, population=8, memetic_top=3, final_refine_step
 # a large step so that the first generation's neighbours are all worse than the start
 HC = FitConfig(
     algorithm="hc", population=16, generations=4, epoch=4, std_init=0.6, std_final=0.4, memetic_steps=0,
-    final_refine_top=3, final_refine_steps=1, islands=1, objective=OBJ,
+    final_refine_top=3, final_refine_steps=1, islands=1, objective=OBJ, staged_alternatives=(),
 )
 CMA = dataclasses.replace(GA_PLAIN, algorithm="cma_es")
 # coarse to fine: one block of 64 points of two until generation 2
 COARSE = dataclasses.replace(ISLANDS, coarse_points=40)
-ALL = [GA, GA_PLAIN, HC, ISLANDS, CMA, COARSE]
-IDS = ["ga", "ga-plain", "hc", "ga-islands2", "cma_es", "ga-coarse"]
+# a portfolio: the staged search and one without staging (FitConfig's default)
+PORTFOLIO = dataclasses.replace(ISLANDS, staged=0.5, staged_alternatives=(0.0,))
+ALL = [GA, GA_PLAIN, HC, ISLANDS, CMA, COARSE, PORTFOLIO]
+IDS = ["ga", "ga-plain", "hc", "ga-islands2", "cma_es", "ga-coarse", "portfolio"]
 
 
 @functools.cache
@@ -133,7 +135,8 @@ def expected_counts(config: FitConfig):
         grad += m * config.final_refine_steps
     if coarse_switch(config, N_POINTS) is not None:  # coarse to fine: population and best rescored
         obj += P + 1
-    return obj * config.islands, grad * config.islands
+    n = config.searches  # a portfolio counts every search's evaluations
+    return obj * config.islands * n, grad * config.islands * n
 
 
 @functools.partial(jax.jit, static_argnames="config")

@@ -16,10 +16,10 @@ from jaxpose.errors import ConfigError
 from jaxpose.search import FitConfig, FitParams, Fitter, auto_generations, fit, fit_cloud
 from jaxpose.search.loop import search_init
 
-# FitConfig's docstring: "The rates, learning_rate, the initial spreads and the objective's
-# sigma_factor and positive weights are traced"
+# FitConfig's docstring: "The rates, learning_rate, the initial spreads, staged and the
+# objective's sigma_factor and positive weights are traced"
 TRACED = ("crossover_rate", "mutation_rate", "branch_mutation_rate", "branch_reset_rate", "learning_rate",
-          "init_root_std", "init_pca_std")
+          "init_root_std", "init_pca_std", "staged")
 TRACED_OBJECTIVE = ("sigma_factor", "free_space_weight", "collision_weight")
 
 
