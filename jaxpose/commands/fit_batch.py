@@ -42,7 +42,8 @@ def _largest(n: int) -> int:
 
 
 def _observe(path, skel, options):
-    """``(depth or view, intrinsics, cloud, input record, warnings)`` of one input, as :func:`jaxpose.fit_file` reads it."""
+    """``(depth or view, intrinsics, cloud, input record, warnings)`` of one input, as
+    :func:`jaxpose.fit_file` reads it."""
     from ..io.cloud_file import is_cloud_file
     from ..pipeline import _depth_record, load_cloud_observation, read_observation, scale_warning, unused_depth_scale
 

@@ -31,7 +31,8 @@ def register(sub) -> None:
                                                              "as orange wireframe capsules; one result only")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (default 127.0.0.1: this machine only; 0.0.0.0: every interface)")
-    p.add_argument("--port", type=int, default=8080, help="port to listen on (default 8080; when it is taken, the next free one; 0: any free one)")
+    p.add_argument("--port", type=int, default=8080,
+                   help="port to listen on (default 8080; when it is taken, the next free one; 0: any free one)")
     p.add_argument("--screenshot", metavar="FILE.png",
                    help="render one picture to FILE.png through a headless Chromium and exit (no window, "
                         "no display needed)")

@@ -185,7 +185,8 @@ def track(clouds: Cloud, skeleton: Skeleton, key: jax.Array, config: TrackConfig
         frames = jax.vmap(track_jit, in_axes=(0, None, 0, None))(clouds, skel, keys, config)
     """
     config = config.validate().for_skeleton(skeleton)
-    _, frames = jax.lax.scan(lambda s, c: track_step(skeleton, config, s, c), initial_state(skeleton, key, init), clouds)
+    _, frames = jax.lax.scan(lambda s, c: track_step(skeleton, config, s, c), initial_state(skeleton, key, init),
+                             clouds)
     return frames
 
 

@@ -6,7 +6,6 @@ The settings are tests/tracking's (the same compiled programs when run together)
 from __future__ import annotations
 
 import json
-import os
 
 import numpy as np
 import pytest
