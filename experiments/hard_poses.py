@@ -568,7 +568,8 @@ def summary_name(draw: str, config, seed: int = 0) -> str:
                 **{f"objective.{k}": v for k, v in d["objective"].items()}}
 
     default, now = flat(FitConfig()), flat(config)
-    changed = [f"{k}={v}" for k, v in sorted(now.items()) if default.get(k) != v]
+    text = lambda v: ",".join(map(str, v)) if isinstance(v, (tuple, list)) else str(v)  # noqa: E731 (no spaces)
+    changed = [f"{k}={text(v)}" for k, v in sorted(now.items()) if default.get(k) != v]
     stem = "diagnosis" if draw == "tuning" else draw
     return "-".join([stem, *changed, *([f"seed{seed}"] if seed else [])])
 
