@@ -285,8 +285,7 @@ def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitCo
     # the portfolio's searches one after another, as Fitter.run runs them
     results = [program(cloud, host(skeleton), k, host(p))
                for k, p in zip(portfolio_keys(key, config.searches), config.search_params(params))]
-    return results[0] if len(results) == 1 else cheapest(jax.tree_util.tree_map(lambda *x: jax.numpy.stack(x),
-                                                                                  *results))
+    return results[0] if len(results) == 1 else cheapest(results)
 
 
 __all__ = ["AXIS", "device_mesh", "fit_batch", "fit_islands", "local_devices", "padded_size", "track_batch"]

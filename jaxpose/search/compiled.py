@@ -25,8 +25,8 @@ from ..errors import ConfigError, require_finite, require_integer
 from .coarse import coarse_switch, rescore_all
 from .config import FitConfig, FitParams
 from .hypotheses import hypotheses as distinct_hypotheses
-from .loop import (EpochSteps, cheapest, evaluation_counts, portfolio_keys, search_epoch, search_generations,
-                   search_init, search_result)
+from .loop import (EpochSteps, cheapest, cheapest_index, evaluation_counts, portfolio_keys, search_epoch,
+                   search_generations, search_init, search_result)
 from .memetic import final_refine, memetic_apply, refine_top
 from .state import FitResult, SearchState
 
@@ -221,9 +221,9 @@ class Fitter:
             states.append(st)
             best = min(best, float(res.cost))
             evals += int(res.objective_evaluations) + int(res.gradient_evaluations)
-        res = results[0] if n == 1 else cheapest(jax.tree_util.tree_map(lambda *x: jnp.stack(x), *results))
+        res = results[0] if n == 1 else cheapest(results)
         if hypotheses > 1:
-            chosen = int(jnp.argmin(jnp.asarray([jnp.nan_to_num(r.cost, nan=jnp.inf) for r in results])))
+            chosen = int(cheapest_index(jnp.stack([r.cost for r in results])))
             res = res._replace(hypotheses=distinct_hypotheses(
                 self.skeleton, self._static, states[chosen], results[chosen], hypotheses))
         res = jax.block_until_ready(res)

@@ -219,12 +219,19 @@ def search_finish(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
     return search_result(cloud, skel, config, st, history, final_refine(skel, config, st))
 
 
-def cheapest(results: FitResult) -> FitResult:
-    """The portfolio's answer: of ``results`` (a :class:`FitResult` whose leaves have a
-    leading axis, one row per search) the cheapest row (NaN costs last), with the
-    evaluation counts of all rows summed."""
-    cost = jnp.where(jnp.isnan(results.cost), jnp.inf, results.cost)
-    best = jax.tree_util.tree_map(lambda x: x[jnp.argmin(cost)], results)
+def cheapest_index(costs: jax.Array) -> jax.Array:
+    """The index of the lowest of ``costs`` (NaN counts as the highest)."""
+    return jnp.argmin(jnp.where(jnp.isnan(costs), jnp.inf, costs))
+
+
+def cheapest(results) -> FitResult:
+    """The portfolio's answer: of ``results`` (a list of :class:`FitResult`, one per
+    search, or one whose leaves have a leading axis of searches) the cheapest (NaN
+    costs last), with the evaluation counts of all of them summed."""
+    if isinstance(results, list):
+        results = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *results)
+    i = cheapest_index(results.cost)
+    best = jax.tree_util.tree_map(lambda x: x[i], results)
     total = lambda x: jnp.sum(x, axis=0)  # noqa: E731
     return best._replace(objective_evaluations=total(results.objective_evaluations),
                          gradient_evaluations=total(results.gradient_evaluations),
