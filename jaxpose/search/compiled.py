@@ -19,12 +19,13 @@ import jax
 import jax.numpy as jnp
 
 from .._xla_flags import fast_compile_options
-from ..objective import Cloud
+from ..objective import Cloud, cloud_spread
 from ..skeleton import Skeleton
 from ..errors import ConfigError, require_finite, require_integer
 from .coarse import coarse_switch, rescore_all
 from .config import FitConfig, FitParams
 from .hypotheses import hypotheses as distinct_hypotheses
+from .hypotheses import with_answers
 from .loop import (EpochSteps, cheapest, cheapest_index, evaluation_counts, portfolio_keys, search_epoch,
                    search_generations, search_init, search_result)
 from .memetic import final_refine, memetic_apply, refine_top
@@ -224,8 +225,11 @@ class Fitter:
         res = results[0] if n == 1 else cheapest(results)
         if hypotheses > 1:
             chosen = int(cheapest_index(jnp.stack([r.cost for r in results])))
-            res = res._replace(hypotheses=distinct_hypotheses(
-                self.skeleton, self._static, states[chosen], results[chosen], hypotheses))
+            hyp = distinct_hypotheses(self.skeleton, self._static, states[chosen], results[chosen], hypotheses)
+            others = [r for j, r in enumerate(results) if j != chosen]
+            if others:  # the other searches' answers are candidates too
+                hyp = with_answers(hyp, others, float(cloud_spread(states[chosen].obs.cloud)), hypotheses)
+            res = res._replace(hypotheses=hyp)
         res = jax.block_until_ready(res)
         return res._replace(wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32))
 

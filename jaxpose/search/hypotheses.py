@@ -89,6 +89,21 @@ def hypotheses(skel: Skeleton, config: FitConfig, st: SearchState, answer, k: in
                       jax.tree_util.tree_map(first, rows(links), answer.links))
 
 
+def with_answers(hyp: Hypotheses, answers: list, spread: float, k: int, min_move: float = MIN_MOVE) -> Hypotheses:
+    """``hyp`` and the ``answers`` of a portfolio's other searches (:class:`~jaxpose.search.FitResult`),
+    each kept where it is distinct from every pose kept before it (by cost, the fit's answer
+    first), at most ``k`` in all: another search's answer is another reading of the points."""
+    as_np = lambda tree: jax.tree_util.tree_map(np.asarray, tree)  # noqa: E731
+    rows = [jax.tree_util.tree_map(lambda x: np.asarray(x)[i], hyp) for i in range(len(hyp.cost))]
+    rows += [Hypotheses(as_np(r.genome), as_np(r.cost), as_np(r.pose), as_np(r.links)) for r in answers]
+    costs = np.array([float(r.cost) for r in rows])
+    finite = costs[np.isfinite(costs)]
+    costs[0] = (finite.min() if finite.size else 0.0) - 1.0  # the fit's answer stays first
+    ends = np.stack([np.concatenate([r.links.start, r.links.end], axis=0) for r in rows])
+    keep = distinct(ends, costs, k, min_move * float(spread))
+    return jax.tree_util.tree_map(lambda *x: np.stack(x), *[rows[i] for i in keep])
+
+
 @partial(jax.jit, static_argnames="config", compiler_options=fast_compile_options())
 def _candidate_ends(skel: Skeleton, config: FitConfig, st: SearchState, genome, cost):
     """The answer and every island's candidates: genomes, costs, capsule ends ``(M, 2 L, 3)``, the cloud's spread."""

@@ -71,3 +71,26 @@ def _fake(cost, i):
     f = jnp.float32
     return FitResult(None, jnp.full((3,), i, f), None, f(cost), jnp.zeros(2, f), jnp.int32(10 + i), jnp.int32(i),
                      f(1.0), f(0.0))
+
+
+def test_hypotheses_offer_the_other_searchs_answer_where_it_is_distinct(runs):
+    """With hypotheses, the losing search's answer is a candidate: it is among them unless
+    every capsule end lies within the hypotheses' min_move of a kept pose (oracle: NumPy)."""
+    from jaxpose.objective import cloud_spread
+    from jaxpose.search.hypotheses import MIN_MOVE
+
+    _, staged, flat = runs
+    lose = flat if float(staged.cost) <= float(flat.cost) else staged
+    both = Fitter(skeleton(), PORTFOLIO).run(spider_cloud(), jax.random.key(5), hypotheses=4)
+    hyp = both.hypotheses
+    assert float(hyp.cost[0]) == float(both.cost) and len(hyp.cost) <= 4
+    assert np.all(np.diff(np.asarray(hyp.cost)[1:]) >= 0)  # by cost after the answer
+    ends = lambda links: np.concatenate([np.asarray(links.start), np.asarray(links.end)], axis=-2)  # noqa: E731
+    move = MIN_MOVE * float(cloud_spread(spider_cloud()))
+    far = [np.max(np.linalg.norm(ends(lose.links) - e, axis=-1)) > move for e in ends(hyp.links)]
+    present = any(float(c) == float(lose.cost) for c in hyp.cost)
+    if all(far) and len(hyp.cost) < 4:
+        assert present, "a distinct answer of the other search was left out"
+    if present:
+        i = [float(c) for c in hyp.cost].index(float(lose.cost))
+        np.testing.assert_array_equal(np.asarray(hyp.genome[i]), np.asarray(lose.genome))
