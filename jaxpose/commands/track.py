@@ -64,6 +64,8 @@ def register(sub) -> None:
     g.add_argument("--no-refine", action="store_true", help="no gradient refinement in the global search")
     g.add_argument("--one-search", action="store_true",
                    help="the global search: the staged search alone, not the portfolio (half the time)")
+    g.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",
+                   help=f"the limb sweep: N generations a limb (0: off; default {FitConfig.limb_sweep})")
     g.add_argument("--sigma-factor", type=float, default=ObjectiveConfig.sigma_factor)
     g.add_argument("--free-space-weight", type=float, default=ObjectiveConfig.free_space_weight)
     g.add_argument("--collision-weight", type=float, default=ObjectiveConfig.collision_weight)

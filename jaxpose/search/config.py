@@ -108,6 +108,13 @@ class FitConfig:
     "Limb hops")."""
     final_hops: int = 0
     """Limb hops of each island's best in the final refinement (as ``memetic_hops``)."""
+    limb_sweep: int = 0
+    """Limb sweep after the search (0: off): every link's subtree searched again, one
+    after another, with the rest of the body held, by a GA of ``population``
+    individuals for this many generations, then Adam (docs/search.md, "Limb sweep")."""
+    limb_sweep_starts: int = 1
+    """Poses the limb sweep starts from: the cheapest islands' bests that differ from each
+    other (another island's trunk may be the right one); the cheapest result is kept."""
     final_refine_top: int = 4
     """How many best individuals of the GA take ``final_refine_steps`` Adam steps at
     the end (other algorithms: their best point)."""
@@ -202,9 +209,10 @@ class FitConfig:
             raise ConfigError(f"coarse_points works with the GA (algorithm 'ga') only, not {self.algorithm!r}")
         if not isinstance(self.tie_lengths, bool):
             raise ConfigError(f"tie_lengths must be true or false, got {self.tie_lengths!r}")
-        for name in ("memetic_top", "memetic_steps", "memetic_hops", "final_hops", "final_refine_top",
-                     "final_refine_steps"):
+        for name in ("memetic_top", "memetic_steps", "memetic_hops", "final_hops", "limb_sweep",
+                     "final_refine_top", "final_refine_steps"):
             require_integer(name, getattr(self, name), 0)
+        require_integer("limb_sweep_starts", self.limb_sweep_starts, 1)
         self.objective.validate()
         return self
 
