@@ -184,7 +184,7 @@ def make_config(base: FitConfig, overrides: dict | None = None) -> FitConfig:
     return cfg.validate()
 
 
-def planned_evaluations(config: FitConfig, n_points: int = InputOptions.max_points) -> dict:
+def planned_evaluations(config: FitConfig, n_points: int = InputOptions.max_points, skel=None) -> dict:
     """Objective and gradient evaluations a fit with ``config`` will count (mirrors jaxpose/search/).
 
     ``P`` per generation (the first generation evaluates the initial population); with
@@ -193,7 +193,9 @@ def planned_evaluations(config: FitConfig, n_points: int = InputOptions.max_poin
     epoch); the final refinement takes ``c * final_refine_steps`` gradients for its
     ``c`` candidates (GA: ``min(final_refine_top, P)``, otherwise 1); a coarse-to-fine GA
     rescores its population and best (``P + 1``) once, on a cloud of ``n_points``;
-    times ``islands``.  :meth:`FitRunner.run` compares this with every fit's actual counts.
+    times ``islands``; the limb sweep's evaluations once per search (``skel`` needed when it is
+    on); all of it once per search of the portfolio (``config.searches``).
+    :meth:`FitRunner.run` compares this with every fit's actual counts.
     """
     if config.generations is None:
         raise ValueError("planned_evaluations: resolve the generations first (config.for_skeleton(skel))")
@@ -207,16 +209,25 @@ def planned_evaluations(config: FitConfig, n_points: int = InputOptions.max_poin
     if coarse_switch(config, n_points) is not None:
         obj += P + 1
     isl = getattr(config, "islands", 1)
-    return {"objective": obj * isl, "gradient": grad * isl, "total": (obj + grad) * isl}
+    obj, grad = obj * isl, grad * isl
+    if config.limb_sweep:
+        if skel is None:
+            raise ValueError("planned_evaluations: a limb sweep's evaluations depend on the skeleton (pass skel)")
+        from jaxpose.search.sweep import sweep_counts
+
+        s_obj, s_grad = sweep_counts(skel, config)
+        obj, grad = obj + s_obj, grad + s_grad
+    n = config.searches
+    return {"objective": obj * n, "gradient": grad * n, "total": (obj + grad) * n}
 
 
-def match_generations(config: FitConfig, target: dict, what: str = "total") -> FitConfig:
+def match_generations(config: FitConfig, target: dict, what: str = "total", skel=None) -> FitConfig:
     """``config`` with the generation count whose planned ``what`` evaluations ("total" =
     objective + gradient, or "objective") come closest to ``target[what]`` (ties: more)."""
     if what == "none":
         return config
     goal = target[what]
-    count = lambda g: planned_evaluations(dataclasses.replace(config, generations=g))[what]  # noqa: E731
+    count = lambda g: planned_evaluations(dataclasses.replace(config, generations=g), skel=skel)[what]  # noqa: E731
     slope = max(count(config.generations + 1) - count(config.generations), 1)
     g0 = max(1, config.generations + int(round((goal - count(config.generations)) / slope)))
     best = min(range(max(1, g0 - 3), g0 + 4), key=lambda g: (abs(count(g) - goal), -g))
@@ -375,8 +386,8 @@ class FitRunner:
             self._warm_up(ds, img, label, config, seed, wkey)
         rec = fit_image(ds, img, config, seed)
         rec.update({"label": label, "key": key, "fingerprint": run_fingerprint(ds, config),
-                    "planned_evaluations": planned_evaluations(config), **(extra or {})})
-        self._check_counts(rec, config, label)
+                    "planned_evaluations": planned_evaluations(config, skel=ds.skeleton), **(extra or {})})
+        self._check_counts(rec, config, label, ds.skeleton)
         self.store.put(key, rec)
         self.ran += 1
         s = rec["symmetric"]
@@ -396,8 +407,8 @@ class FitRunner:
         self.warm.add(wkey)
         log(f"         {'':<8} {'':<16} {'':<20} warm-up took {rec['wall_seconds']:.1f} s")
 
-    def _check_counts(self, rec, config, label):
-        plan = planned_evaluations(config)
+    def _check_counts(self, rec, config, label, skel):
+        plan = planned_evaluations(config, skel=skel)
         got = (rec["objective_evaluations"], rec["gradient_evaluations"])
         if got != (plan["objective"], plan["gradient"]) and label not in self.warned:
             self.warned.add(label)

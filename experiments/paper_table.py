@@ -92,14 +92,15 @@ def variant_configs(args, skel) -> tuple[dict, dict]:
     over = {k: v for k, v in (("population", args.population), ("generations", args.generations)) if v is not None}
     base = C.make_config(base, over).for_skeleton(skel)
     ref = C.make_config(base, VARIANTS[BUDGET_REFERENCE])
-    target = C.planned_evaluations(ref)
+    target = C.planned_evaluations(ref, skel=skel)
     configs = {}
     for name in args.algorithms:
         cfg = C.make_config(base, VARIANTS[name])
         if name != BUDGET_REFERENCE:
-            cfg = C.match_generations(cfg, target, args.match)
+            cfg = C.match_generations(cfg, target, args.match, skel)
         configs[name] = cfg
-    budget = {"reference_planned": target, "planned": {n: C.planned_evaluations(c) for n, c in configs.items()}}
+    planned = {n: C.planned_evaluations(c, skel=skel) for n, c in configs.items()}
+    budget = {"reference_planned": target, "planned": planned}
     return configs, budget
 
 

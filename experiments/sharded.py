@@ -93,8 +93,8 @@ class BatchRunner:
                 one = jax.tree_util.tree_map(lambda x: x[i], res)  # noqa: B023 - used at once
                 rec = self._record(ds, img, config, seed, one, seconds, len(part), int(self.mesh.devices.size))
                 rec.update({"label": label, "key": key, "fingerprint": C.run_fingerprint(ds, config),
-                            "planned_evaluations": C.planned_evaluations(config), **(extra or {})})
-                self.runner._check_counts(rec, config, label)
+                            "planned_evaluations": C.planned_evaluations(config, skel=ds.skeleton), **(extra or {})})
+                self.runner._check_counts(rec, config, label, ds.skeleton)
                 self.runner.store.put(key, rec)
                 self.runner.ran += 1
             if part:

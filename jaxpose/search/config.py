@@ -108,13 +108,10 @@ class FitConfig:
     "Limb hops")."""
     final_hops: int = 0
     """Limb hops of each island's best in the final refinement (as ``memetic_hops``)."""
-    limb_sweep: int = 0
+    limb_sweep: int = 24
     """Limb sweep after the search (0: off): every link's subtree searched again, one
     after another, with the rest of the body held, by a GA of ``population``
     individuals for this many generations, then Adam (docs/search.md, "Limb sweep")."""
-    limb_sweep_starts: int = 1
-    """Poses the limb sweep starts from: the cheapest islands' bests that differ from each
-    other (another island's trunk may be the right one); the cheapest result is kept."""
     final_refine_top: int = 4
     """How many best individuals of the GA take ``final_refine_steps`` Adam steps at
     the end (other algorithms: their best point)."""
@@ -212,7 +209,6 @@ class FitConfig:
         for name in ("memetic_top", "memetic_steps", "memetic_hops", "final_hops", "limb_sweep",
                      "final_refine_top", "final_refine_steps"):
             require_integer(name, getattr(self, name), 0)
-        require_integer("limb_sweep_starts", self.limb_sweep_starts, 1)
         self.objective.validate()
         return self
 

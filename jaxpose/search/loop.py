@@ -20,7 +20,7 @@ from evosax.algorithms.population_based.base import PopulationBasedAlgorithm
 from ..errors import ConfigError
 from ..genome import decode, genome_layout
 from ..kinematics import forward_kinematics
-from ..objective import Cloud, cloud_spread, observe
+from ..objective import Cloud, observe
 from ..rest_model import RestModel, rest_model
 from ..skeleton import Skeleton
 from .baselines import BoundedHillClimbing, evosax_strategy
@@ -33,8 +33,7 @@ from .init import initial_population, search_bounds
 from .islands import halve_islands, island_map, per_island, vmap_shared
 from .memetic import final_refine, keep_better, memetic_apply, refine_top
 from .state import SHARED, FitResult, SearchState
-from .hypotheses import MIN_MOVE
-from .sweep import distinct_starts, limb_sweep, sweep_counts
+from .sweep import limb_sweep, sweep_counts
 
 
 def make_algorithm(skel: Skeleton, config: FitConfig, params: FitParams):
@@ -210,17 +209,8 @@ def search_result(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
     best_g = jnp.clip(best_g, 0.0, 1.0)  # evosax strategies sample unbounded; decode clips the same way
     if config.limb_sweep:
         key = jax.random.fold_in(st.key if config.islands == 1 else st.key[0], 1)
-        cost = population_cost_fn(skel, config, st)
-        if config.limb_sweep_starts == 1:
-            best_g, best_f = limb_sweep(skel, config, cost, best_g, best_f, key, st.params.learning_rate)
-        else:  # the cheapest islands' distinct bests (the first is best_g), each swept
-            S = config.limb_sweep_starts
-            g_all, f_all = (best_g[None], best_f[None]) if config.islands == 1 else (jnp.clip(g, 0.0, 1.0), f)
-            take = distinct_starts(skel, st.bounds, g_all, f_all, S, MIN_MOVE * cloud_spread(st.obs.cloud))
-            gs, fs = jax.vmap(lambda g0, f0, k: limb_sweep(skel, config, cost, g0, f0, k, st.params.learning_rate))(
-                g_all[take], f_all[take], jax.random.split(key, S))
-            j = cheapest_index(fs)
-            best_g, best_f = gs[j], fs[j]
+        best_g, best_f = limb_sweep(skel, config, population_cost_fn(skel, config, st), best_g, best_f, key,
+                                    st.params.learning_rate)
         e, gr = sweep_counts(skel, config)
         evals, grads = evals + e, grads + gr
     if config.tie_lengths:  # the projection every generation applies, also to the returned best

@@ -6,9 +6,10 @@ then mutation steps are small and Adam only descends.  A sweep takes the search'
 best and, limb after limb down the tree (every link's subtree, trunk side first),
 runs a small GA over that subtree's joint angles alone, from angles drawn
 uniformly within their limits and the current ones, with every other gene held;
-Adam then polishes its best few on every gene, and the limb's new place is kept
-when it lowers the cost.  A systematic search of each limb given the rest,
-where the GA's branch resets are rare random jumps (docs/search.md, "Limb sweep").
+Adam then polishes its best few on every gene (unless the final refinement is
+off), and the limb's new place is kept when it lowers the cost.  A systematic
+search of each limb given the rest, where the GA's branch resets are rare random
+jumps (docs/search.md, "Limb sweep").
 """
 
 from __future__ import annotations
@@ -17,8 +18,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..genome import decode
-from ..kinematics import forward_kinematics
 from ..skeleton import Skeleton
 from .config import FitConfig
 from .ga import BranchSwapGA, subtree_masks
@@ -43,27 +42,8 @@ def sweep_counts(skel: Skeleton, config: FitConfig) -> tuple[int, int]:
         return 0, 0
     K = len(sweep_masks(skel))
     top = min(SWEEP_REFINE_TOP, config.population)
-    S = config.limb_sweep_starts
-    return S * K * config.population * config.limb_sweep, S * K * top * SWEEP_REFINE_STEPS
-
-
-def distinct_starts(skel: Skeleton, bounds, genomes, costs, count: int, min_move):
-    """Indices ``(count,)`` of the cheapest of ``genomes (M, D)`` (costs ``(M,)``) that differ
-    from each other: each moves some capsule end further than ``min_move`` from every one
-    taken before it (by cost); padded with the cheapest when fewer differ."""
-    links = jax.vmap(lambda g: forward_kinematics(skel, decode(skel, bounds, g)))(genomes)
-    ends = jnp.concatenate([links.start, links.end], axis=1)  # (M, 2 L, 3)
-    order = jnp.argsort(jnp.where(jnp.isfinite(costs), costs, jnp.inf))
-
-    def consider(i, carry):
-        taken, n = carry
-        j = order[i]
-        moved = jnp.max(jnp.linalg.norm(ends[j][None] - ends[taken], axis=-1), axis=-1)  # (count,)
-        new = jnp.all((moved > min_move) | (jnp.arange(count) >= n)) & (n < count) & jnp.isfinite(costs[j])
-        return jnp.where(new, taken.at[jnp.minimum(n, count - 1)].set(j), taken), n + new
-
-    taken = jnp.full((count,), order[0], jnp.int32)
-    return jax.lax.fori_loop(1, genomes.shape[0], consider, (taken, jnp.int32(1)))[0]
+    steps = SWEEP_REFINE_STEPS if config.final_refine_on else 0  # no refinement at all: no Adam here either
+    return K * config.population * config.limb_sweep, K * top * steps
 
 
 def limb_sweep(skel: Skeleton, config: FitConfig, cost, genome, genome_cost, key, learning_rate):
@@ -102,9 +82,11 @@ def limb_sweep(skel: Skeleton, config: FitConfig, cost, genome, genome_cost, key
             return state, None
 
         state, _ = jax.lax.scan(generation, state, jax.random.split(k_run, G - 1)) if G > 1 else (state, None)
-        order = jnp.argsort(state.fitness)[:top]
-        rg, rf = refine(cost, state.population[order], jnp.int32(SWEEP_REFINE_STEPS), learning_rate)
-        best_g, best_f = keep_better(rg, rf, state.best_solution, state.best_fitness)
+        best_g, best_f = state.best_solution, state.best_fitness
+        if config.final_refine_on:
+            order = jnp.argsort(state.fitness)[:top]
+            rg, rf = refine(cost, state.population[order], jnp.int32(SWEEP_REFINE_STEPS), learning_rate)
+            best_g, best_f = keep_better(rg, rf, best_g, best_f)
         return keep_better(best_g[None], best_f[None], g, f), None
 
     keys = jax.random.split(key, masks.shape[0])

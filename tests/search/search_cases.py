@@ -49,7 +49,7 @@ OBJ = ObjectiveConfig(free_space_grid=16, block=64)
 # memetic_top above the population: clamped to it
 GA = FitConfig(
     algorithm="ga", population=16, generations=4, epoch=2, memetic_top=20, memetic_steps=2,
-    final_refine_top=20, final_refine_steps=3, islands=1, objective=OBJ, staged_alternatives=(),
+    final_refine_top=20, final_refine_steps=3, islands=1, objective=OBJ, staged_alternatives=(), limb_sweep=0,
 )
 # no refinement: the plain search budget, population * generations
 GA_PLAIN = dataclasses.replace(GA, epoch=4, memetic_steps=0, final_refine_steps=0)
@@ -57,7 +57,7 @@ ISLANDS = dataclasses.replace(GA, population=8, memetic_top=3, final_refine_step
 # a large step so that the first generation's neighbours are all worse than the start
 HC = FitConfig(
     algorithm="hc", population=16, generations=4, epoch=4, std_init=0.6, std_final=0.4, memetic_steps=0,
-    final_refine_top=3, final_refine_steps=1, islands=1, objective=OBJ, staged_alternatives=(),
+    final_refine_top=3, final_refine_steps=1, islands=1, objective=OBJ, staged_alternatives=(), limb_sweep=0,
 )
 CMA = dataclasses.replace(GA_PLAIN, algorithm="cma_es")
 # coarse to fine: one block of 64 points of two until generation 2
@@ -135,8 +135,14 @@ def expected_counts(config: FitConfig):
         grad += m * config.final_refine_steps
     if coarse_switch(config, N_POINTS) is not None:  # coarse to fine: population and best rescored
         obj += P + 1
+    obj, grad = obj * config.islands, grad * config.islands
+    if config.limb_sweep:  # once per search (not per island): every subtree's GA, then Adam on its best 2
+        masks = sum(1 for k in range(skeleton().num_links)
+                    if any(".q" in n for n in jaxpose.genome_layout(skeleton()).names
+                           if n.rsplit(".", 1)[0] in {skeleton().link_names[i] for i in skeleton().subtree(k)}))
+        obj, grad = obj + masks * P * config.limb_sweep, grad + masks * min(2, P) * 30
     n = config.searches  # a portfolio counts every search's evaluations
-    return obj * config.islands * n, grad * config.islands * n
+    return obj * n, grad * n
 
 
 @functools.partial(jax.jit, static_argnames="config")

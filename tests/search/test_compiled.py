@@ -53,9 +53,10 @@ def skeleton():
 
 def config(**kw) -> FitConfig:
     # memetic and final refinement (gradients through the cost) off: they only add compile time here
-    # one search unless a test asks for the portfolio
+    # one search unless a test asks for the portfolio; no limb sweep (on a search this short it does most of
+    # the work and turns round-off between programs into different answers: docs/search.md, "Limb sweep")
     base = dict(population=7, generations=GENERATIONS, epoch=EPOCH, memetic_steps=0, final_refine_steps=0,
-                staged_alternatives=())
+                staged_alternatives=(), limb_sweep=0)
     base.update(kw)
     return FitConfig(**base)
 

@@ -87,35 +87,7 @@ def test_a_fit_with_the_sweep_costs_no_more_and_counts_its_evaluations():
     assert int(swept.gradient_evaluations - plain.gradient_evaluations) == K * top * sweep.SWEEP_REFINE_STEPS
 
 
-@pytest.mark.parametrize("field,value", [("limb_sweep", -1), ("limb_sweep", 2.5), ("limb_sweep", "10"),
-                                         ("limb_sweep_starts", 0), ("limb_sweep_starts", 1.5)])
+@pytest.mark.parametrize("field,value", [("limb_sweep", -1), ("limb_sweep", 2.5), ("limb_sweep", "10")])
 def test_bad_sweep_settings_are_named(field, value):
     with pytest.raises(ConfigError, match=field):
         dataclasses.replace(FitConfig(), **{field: value}).validate()
-
-
-@pytest.mark.parametrize("count,min_move", [(1, 0.1), (3, 0.1), (5, 0.3), (8, 10.0)])
-def test_distinct_starts_match_the_numpy_distinctness_oracle(count, min_move):
-    from jaxpose.search.hypotheses import distinct
-
-    skel, cloud = skeleton(), spider_cloud()
-    _, bounds = _setting(skel, cloud)
-    rng = np.random.default_rng(count)
-    base = rng.uniform(size=(4, len(jaxpose.genome_layout(skel).names)))
-    # near-copies of four poses (as islands after the halving), one non-finite cost
-    genomes = np.clip(np.repeat(base, 3, 0) + 0.003 * rng.normal(size=(12, base.shape[1])), 0, 1).astype(np.float32)
-    costs = rng.uniform(0.05, 0.1, 12).astype(np.float32)
-    costs[5] = np.inf
-    got = np.asarray(jax.jit(sweep.distinct_starts, static_argnums=(4,))(
-        skel, bounds, jnp.asarray(genomes), jnp.asarray(costs), count, jnp.float32(min_move)))
-    links = [forward_kinematics(skel, decode(skel, bounds, jnp.asarray(g))) for g in genomes]
-    ends = np.stack([np.concatenate([np.asarray(x.start), np.asarray(x.end)]) for x in links])
-    want = distinct(ends, costs, count, min_move)
-    assert got.tolist() == want + [want[0]] * (count - len(want))
-
-
-def test_several_starts_sweep_each_and_keep_the_cheapest():
-    one, many = run(SWEEP), run(dataclasses.replace(SWEEP, limb_sweep_starts=3))
-    assert float(many.cost) <= float(run(dataclasses.replace(SWEEP, limb_sweep=0)).cost)
-    assert int(many.objective_evaluations - one.objective_evaluations) == 2 * sweep.sweep_counts(skeleton(), SWEEP)[0]
-    assert int(many.gradient_evaluations - one.gradient_evaluations) == 2 * sweep.sweep_counts(skeleton(), SWEEP)[1]
