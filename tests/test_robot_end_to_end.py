@@ -47,7 +47,8 @@ def mjcf_tree(path):
 
 
 def metrics_oracle(result, truth):
-    """Strict PCP (both ends within half the true length), PCP@10cm, PCK@10cm, MPJPE (mm), by name."""
+    """Strict PCP (both ends within half the true length; links of zero true length, a sphere or a
+    fixed frame, are not scored: jaxpose.metrics.pcp_scored), PCP@10cm, PCK@10cm, MPJPE (mm), by name."""
     t = {link["name"]: link for link in truth["links"]}
     ps, pe, ts, te = (np.array([link[k] for link in result["links"]], float) if src == "r" else
                       np.array([t[link["name"]][k] for link in result["links"]], float)
@@ -57,7 +58,7 @@ def metrics_oracle(result, truth):
     half = 0.5 * np.linalg.norm(te - ts, axis=1)
     both = np.concatenate([ds, de])
     return {
-        "pcp": float(np.mean((ds <= half) & (de <= half))),
+        "pcp": float(np.mean(((ds <= half) & (de <= half))[half > 0])),
         "pcp_10cm": float(np.mean((ds <= 0.1) & (de <= 0.1))),
         "pck_10cm": float(np.mean(both <= 0.1)),
         "mpjpe_mm": float(1000 * both.mean()),
