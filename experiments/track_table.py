@@ -134,11 +134,11 @@ def summarise(name, frames, same, full, gap):
 
 
 def same_budget(config: TrackConfig) -> jp.FitConfig:
-    """The global search from scratch with a tracked frame's evaluations: one island of the tracker's
-    population for its generations, its refinement at the end."""
+    """The global search from scratch with a tracked frame's evaluations: one search (no portfolio, no
+    limb sweep) of one island of the tracker's population for its generations, its refinement at the end."""
     return dataclasses.replace(config.fit, islands=1, population=config.population, generations=config.generations,
                                epoch=config.generations, memetic_steps=0, final_refine_top=config.refine_top,
-                               final_refine_steps=config.refine_steps)
+                               final_refine_steps=config.refine_steps, staged_alternatives=(), limb_sweep=0)
 
 
 def table(rows, machine: str) -> str:
