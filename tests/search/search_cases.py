@@ -87,6 +87,16 @@ def branchy_skeleton():
     return build_skeleton("branchy", links)
 
 
+def descendants(skel, k):
+    """Link ``k`` and every link below it, from the parent list alone (an oracle for subtrees)."""
+    out, todo = set(), [k]
+    while todo:
+        i = todo.pop()
+        out.add(i)
+        todo += [j for j, p in enumerate(skel.parents) if p == i]
+    return out
+
+
 # --------------------------------------------------------------------------- synthetic data
 
 
@@ -139,7 +149,7 @@ def expected_counts(config: FitConfig):
     if config.limb_sweep:  # once per search (not per island): every subtree's GA, then Adam on its best 2
         masks = sum(1 for k in range(skeleton().num_links)
                     if any(".q" in n for n in jaxpose.genome_layout(skeleton()).names
-                           if n.rsplit(".", 1)[0] in {skeleton().link_names[i] for i in skeleton().subtree(k)}))
+                           if n.rsplit(".", 1)[0] in {skeleton().link_names[i] for i in descendants(skeleton(), k)}))
         obj, grad = obj + masks * P * config.limb_sweep, grad + masks * min(2, P) * 30
     n = config.searches  # a portfolio counts every search's evaluations
     return obj * n, grad * n

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from search_cases import GA, branchy_skeleton, skeleton, spider_cloud
+from search_cases import GA, branchy_skeleton, descendants, skeleton, spider_cloud
 
 import jaxpose
 from jaxpose.search import Fitter, memetic
@@ -44,15 +44,6 @@ def _gene_names(skel):
     return jaxpose.genome_layout(skel).names
 
 
-def _descendants(skel, k):
-    out, todo = set(), [k]
-    while todo:
-        i = todo.pop()
-        out.add(i)
-        todo += [j for j, p in enumerate(skel.parents) if p == i]
-    return out
-
-
 @pytest.mark.parametrize("make", [lambda: skeleton("humanoid"), branchy_skeleton], ids=["humanoid", "branchy"])
 def test_hop_masks_are_each_subtrees_joint_angles_and_the_root_orientation(make):
     skel = make()
@@ -60,7 +51,7 @@ def test_hop_masks_are_each_subtrees_joint_angles_and_the_root_orientation(make)
     masks = memetic.hop_masks(skel)
     assert masks.shape == (skel.num_links + 1, len(names))
     for k in range(skel.num_links):  # oracle: the parent list and the gene names
-        links = {skel.link_names[i] for i in _descendants(skel, k)}
+        links = {skel.link_names[i] for i in descendants(skel, k)}
         want = [n.rsplit(".", 1)[0] in links and ".q" in n for n in names]
         assert masks[k].tolist() == want, skel.link_names[k]
     assert [n for n, m in zip(names, masks[-1]) if m] == ["root_roll", "root_pitch", "root_yaw"]

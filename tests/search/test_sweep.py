@@ -17,18 +17,9 @@ from jaxpose.search import init, memetic, sweep
 from jaxpose.search.loop import population_cost_fn
 from jaxpose.search.state import SearchState
 
-from search_cases import GA, OBJ, run, skeleton, spider_cloud, true_pose
+from search_cases import GA, OBJ, descendants, run, skeleton, spider_cloud, true_pose
 
 SWEEP = dataclasses.replace(GA, population=16, limb_sweep=4)
-
-
-def _descendants(skel, k):
-    out, todo = set(), [k]
-    while todo:
-        i = todo.pop()
-        out.add(i)
-        todo += [j for j, p in enumerate(skel.parents) if p == i]
-    return out
 
 
 @pytest.mark.parametrize("name", ["humanoid", "spider"])
@@ -38,7 +29,7 @@ def test_sweep_masks_are_every_subtrees_joint_angles_in_tree_order(name):
     masks = sweep.sweep_masks(skel)
     want = []  # oracle: the parent list and the gene names
     for k in range(skel.num_links):
-        links = {skel.link_names[i] for i in _descendants(skel, k)}
+        links = {skel.link_names[i] for i in descendants(skel, k)}
         row = [n.rsplit(".", 1)[0] in links and ".q" in n for n in names]
         if any(row):
             want.append(row)
