@@ -210,9 +210,9 @@ def planned_evaluations(config: FitConfig, n_points: int = InputOptions.max_poin
         obj += P + 1
     isl = getattr(config, "islands", 1)
     obj, grad = obj * isl, grad * isl
-    if config.limb_sweep:
+    if config.limb_sweep or config.pivot_sweep:
         if skel is None:
-            raise ValueError("planned_evaluations: a limb sweep's evaluations depend on the skeleton (pass skel)")
+            raise ValueError("planned_evaluations: a sweep's evaluations depend on the skeleton (pass skel)")
         from jaxpose.search.sweep import sweep_counts
 
         s_obj, s_grad = sweep_counts(skel, config)

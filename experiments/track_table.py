@@ -138,7 +138,8 @@ def same_budget(config: TrackConfig) -> jp.FitConfig:
     limb sweep) of one island of the tracker's population for its generations, its refinement at the end."""
     return dataclasses.replace(config.fit, islands=1, population=config.population, generations=config.generations,
                                epoch=config.generations, memetic_steps=0, final_refine_top=config.refine_top,
-                               final_refine_steps=config.refine_steps, staged_alternatives=(), limb_sweep=0)
+                               final_refine_steps=config.refine_steps, staged_alternatives=(), limb_sweep=0,
+                               pivot_sweep=0)
 
 
 def table(rows, machine: str) -> str:

@@ -66,6 +66,10 @@ def register(sub) -> None:
     p.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",
                    help="after each search, search every limb again with the rest of the body held, N "
                         f"generations each (0: off; default {FitConfig.limb_sweep})")
+    p.add_argument("--pivot-sweep", type=int, default=FitConfig.pivot_sweep, metavar="N",
+                   help="after each search and before the limb sweep, hold every limb where it is and search the "
+                        "rest of the body again around it, N generations each "
+                        f"(0: off; default {FitConfig.pivot_sweep})")
     p.add_argument("--time-budget", type=float, metavar="SECONDS",
                    help="anytime fit: end the search after the epoch in which this many seconds of search "
                         "(compilation excluded) have passed, then refine and write the best as usual")
@@ -103,7 +107,8 @@ def register(sub) -> None:
 # The settings' names in the config classes' errors, as the command line's flags.
 FLAGS = {
     "population": "--population", "generations": "--generations", "islands": "--islands",
-    "coarse_points": "--coarse-points", "limb_sweep": "--limb-sweep", "objective.sigma_factor": "--sigma-factor",
+    "coarse_points": "--coarse-points", "limb_sweep": "--limb-sweep",
+    "pivot_sweep": "--pivot-sweep", "objective.sigma_factor": "--sigma-factor",
     "objective.free_space_weight": "--free-space-weight", "objective.collision_weight": "--collision-weight",
     "near": "--near", "far": "--far", "depth_scale": "--depth-scale", "cloud_scale": "--cloud-scale",
     "viewpoint": "--viewpoint", "max_points": "--max-points", "remove_planes": "--remove-planes",
@@ -149,6 +154,7 @@ def config_from_args(args) -> FitConfig:
         coarse_points=args.coarse_points,
         tie_lengths=args.tie_lengths,
         limb_sweep=args.limb_sweep,
+        pivot_sweep=args.pivot_sweep,
         objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor,
                                   collision_weight=args.collision_weight),
     )

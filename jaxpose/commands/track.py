@@ -66,6 +66,8 @@ def register(sub) -> None:
                    help="the global search: the staged search alone, not the portfolio (half the time)")
     g.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",
                    help=f"the limb sweep: N generations a limb (0: off; default {FitConfig.limb_sweep})")
+    g.add_argument("--pivot-sweep", type=int, default=FitConfig.pivot_sweep, metavar="N",
+                   help=f"the pivot sweep: N generations a pivot (0: off; default {FitConfig.pivot_sweep})")
     g.add_argument("--sigma-factor", type=float, default=ObjectiveConfig.sigma_factor)
     g.add_argument("--free-space-weight", type=float, default=ObjectiveConfig.free_space_weight)
     g.add_argument("--collision-weight", type=float, default=ObjectiveConfig.collision_weight)

@@ -112,6 +112,10 @@ class FitConfig:
     """Limb sweep after the search (0: off): every link's subtree searched again, one
     after another, with the rest of the body held, by a GA of ``population``
     individuals for this many generations, then Adam (docs/search.md, "Limb sweep")."""
+    pivot_sweep: int = 24
+    """Pivot sweep after the search, before the limb sweep (0: off): for every body,
+    its subtree held where it is and the rest of the body searched again around it
+    (the root pose following), as ``limb_sweep`` (docs/search.md, "Pivot sweep")."""
     final_refine_top: int = 4
     """How many best individuals of the GA take ``final_refine_steps`` Adam steps at
     the end (other algorithms: their best point)."""
@@ -206,7 +210,7 @@ class FitConfig:
             raise ConfigError(f"coarse_points works with the GA (algorithm 'ga') only, not {self.algorithm!r}")
         if not isinstance(self.tie_lengths, bool):
             raise ConfigError(f"tie_lengths must be true or false, got {self.tie_lengths!r}")
-        for name in ("memetic_top", "memetic_steps", "memetic_hops", "final_hops", "limb_sweep",
+        for name in ("memetic_top", "memetic_steps", "memetic_hops", "final_hops", "limb_sweep", "pivot_sweep",
                      "final_refine_top", "final_refine_steps"):
             require_integer(name, getattr(self, name), 0)
         self.objective.validate()

@@ -207,10 +207,10 @@ def search_result(cloud: Cloud, skel: Skeleton, config: FitConfig, st: SearchSta
         i = jnp.argmin(f)
         best_g, best_f, evals, grads = g[i], f[i], jnp.sum(e), jnp.sum(gr)
     best_g = jnp.clip(best_g, 0.0, 1.0)  # evosax strategies sample unbounded; decode clips the same way
-    if config.limb_sweep:
+    if config.limb_sweep or config.pivot_sweep:
         key = jax.random.fold_in(st.key if config.islands == 1 else st.key[0], 1)
         best_g, best_f = limb_sweep(skel, config, population_cost_fn(skel, config, st), best_g, best_f, key,
-                                    st.params.learning_rate)
+                                    st.params.learning_rate, st.bounds)
         e, gr = sweep_counts(skel, config)
         evals, grads = evals + e, grads + gr
     if config.tie_lengths:  # the projection every generation applies, also to the returned best

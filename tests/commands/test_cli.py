@@ -282,9 +282,10 @@ def test_fit_options_reach_the_config():
 
     args = build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", "--coarse-points", "256",
                                       "--islands", "3", "--population", "20", "--generations", "40",
-                                      "--tie-lengths", "--limb-sweep", "7"])
+                                      "--tie-lengths", "--limb-sweep", "7", "--pivot-sweep", "5"])
     cfg = config_from_args(args)
-    assert (cfg.coarse_points, cfg.islands, cfg.population, cfg.generations, cfg.limb_sweep) == (256, 3, 20, 40, 7)
+    assert (cfg.coarse_points, cfg.islands, cfg.population, cfg.generations, cfg.limb_sweep, cfg.pivot_sweep) == (
+        256, 3, 20, 40, 7, 5)
     assert cfg.tie_lengths
     default = config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider"]))
     assert default == FitConfig()

@@ -50,6 +50,7 @@ OBJ = ObjectiveConfig(free_space_grid=16, block=64)
 GA = FitConfig(
     algorithm="ga", population=16, generations=4, epoch=2, memetic_top=20, memetic_steps=2,
     final_refine_top=20, final_refine_steps=3, islands=1, objective=OBJ, staged_alternatives=(), limb_sweep=0,
+    pivot_sweep=0,
 )
 # no refinement: the plain search budget, population * generations
 GA_PLAIN = dataclasses.replace(GA, epoch=4, memetic_steps=0, final_refine_steps=0)
@@ -58,6 +59,7 @@ ISLANDS = dataclasses.replace(GA, population=8, memetic_top=3, final_refine_step
 HC = FitConfig(
     algorithm="hc", population=16, generations=4, epoch=4, std_init=0.6, std_final=0.4, memetic_steps=0,
     final_refine_top=3, final_refine_steps=1, islands=1, objective=OBJ, staged_alternatives=(), limb_sweep=0,
+    pivot_sweep=0,
 )
 CMA = dataclasses.replace(GA_PLAIN, algorithm="cma_es")
 # coarse to fine: one block of 64 points of two until generation 2
@@ -151,6 +153,11 @@ def expected_counts(config: FitConfig):
                     if any(".q" in n for n in jaxpose.genome_layout(skeleton()).names
                            if n.rsplit(".", 1)[0] in {skeleton().link_names[i] for i in descendants(skeleton(), k)}))
         obj, grad = obj + masks * P * config.limb_sweep, grad + masks * min(2, P) * 30
+    if config.pivot_sweep:  # every link with two links or more below it and joint angles elsewhere
+        skel, names = skeleton(), jaxpose.genome_layout(skeleton()).names
+        pivots = sum(1 for k in range(skel.num_links) if len(descendants(skel, k)) >= 2 and any(
+            ".q" in n for n in names if n.rsplit(".", 1)[0] not in {skel.link_names[i] for i in descendants(skel, k)}))
+        obj, grad = obj + pivots * P * config.pivot_sweep, grad + pivots * min(2, P) * 30
     n = config.searches  # a portfolio counts every search's evaluations
     return obj * n, grad * n
 

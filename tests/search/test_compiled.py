@@ -56,7 +56,7 @@ def config(**kw) -> FitConfig:
     # one search unless a test asks for the portfolio; no limb sweep (on a search this short it does most of
     # the work and turns round-off between programs into different answers: docs/search.md, "Limb sweep")
     base = dict(population=7, generations=GENERATIONS, epoch=EPOCH, memetic_steps=0, final_refine_steps=0,
-                staged_alternatives=(), limb_sweep=0)
+                staged_alternatives=(), limb_sweep=0, pivot_sweep=0)
     base.update(kw)
     return FitConfig(**base)
 
