@@ -5,7 +5,8 @@ Kinect-like camera, rendered frame after frame with the truth of every frame
 Motion.  Every joint value follows ``q0 + sum_k a_k sin(2 pi f_k t + phi_k)``
 (two sines per joint, ``f_k`` in ``FREQUENCIES`` Hz, amplitudes a fraction of half
 the joint's range), clipped to its limits, around a random natural pose ``q0``
-(:func:`~jaxpose.datasets.random_pose`); the root walks along a straight line on
+(:func:`~jaxpose.datasets.random_pose`), drawn again while the body would pass
+through itself in any frame (:func:`joint_motion`); the root walks along a straight line on
 the floor at ``speed`` (in the subject's size per second) and turns about the
 vertical at ``turn_rate`` rad/s.  At 30 frames a second a joint moves up to a
 few degrees per frame, the root a few centimetres.
@@ -28,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .camera import KINECT_V1, Intrinsics
-from .datasets import View, link_visibility, random_pose, subject_frame, _fk
+from .datasets import View, link_visibility, random_pose, self_collisions, subject_frame, _fk
 from .render import (
     SensorModel, apply_sensor, capsule_scene, empty_scene, floor_scene, merge_scenes, orbit_extrinsics,
     pose_to_camera, random_clutter, render_scene, transform_scene,
@@ -37,6 +38,7 @@ from .skeleton import Pose, Skeleton
 
 FREQUENCIES = (0.25, 0.8)  # Hz: the range of the joints' sines (slow, natural motion)
 GAP_TURN = 0.6  # radians the subject has turned when it comes back after a gap
+MOTION_TRIES = 30  # draws of the joints' sines before the least colliding is kept
 
 
 class Sequence(NamedTuple):
@@ -57,11 +59,7 @@ def motion(skel: Skeleton, rng, frames: int, fps: float = 30.0, amplitude: float
     """World-frame poses of a smooth motion (module docstring), one per frame."""
     rng = np.random.default_rng(rng)
     base = random_pose(skel, rng, angle_spread=angle_spread, scale=scale, yaw=yaw)
-    lo, hi = np.asarray(skel.angle_lo, np.float64), np.asarray(skel.angle_hi, np.float64)
-    q0 = np.asarray(base.angles, np.float64)
-    amp = amplitude * (hi - lo) / 2 * rng.uniform(0.3, 1.0, (2,) + q0.shape)
-    freq = rng.uniform(*FREQUENCIES, (2,) + q0.shape)
-    phase = rng.uniform(0, 2 * np.pi, (2,) + q0.shape)
+    qs = joint_motion(skel, base, rng, frames, fps, amplitude)
     size = 2 * subject_frame(skel, base)[1]
     heading = rng.uniform(-np.pi, np.pi)
     direction = np.array([np.cos(heading), np.sin(heading), 0.0])
@@ -69,9 +67,8 @@ def motion(skel: Skeleton, rng, frames: int, fps: float = 30.0, amplitude: float
     w = turn_rate * rng.uniform(-1.0, 1.0)
     side = np.array([-np.sin(yaw), np.cos(yaw), 0.0])
     poses = []
-    for t in range(frames):
+    for t, q in enumerate(qs):
         s = t / fps
-        q = np.clip(q0 + np.sum(amp * np.sin(2 * np.pi * freq * s + phase), 0), lo, hi)
         root_t = v * s * direction
         root_yaw = float(base.root_rpy[2]) + w * s
         if gap is not None and t >= gap[0] + gap[1]:  # back elsewhere
@@ -81,6 +78,35 @@ def motion(skel: Skeleton, rng, frames: int, fps: float = 30.0, amplitude: float
                                    root_rpy=jnp.asarray([0.0, 0.0, root_yaw], jnp.float32),
                                    angles=jnp.asarray(q, jnp.float32)))
     return poses
+
+
+def joint_motion(skel: Skeleton, base: Pose, rng, frames: int, fps: float, amplitude: float,
+                 tries: int = MOTION_TRIES) -> list[np.ndarray]:
+    """Every frame's joint values: two sines per joint around ``base``'s, clipped to the limits.
+    A draw in which the body passes through itself in any frame
+    (:func:`~jaxpose.datasets.self_collisions`) is drawn again, its amplitudes shrunk by a
+    third after every ``tries // 3`` failures; after ``tries`` the least colliding is kept."""
+    lo, hi = np.asarray(skel.angle_lo, np.float64), np.asarray(skel.angle_hi, np.float64)
+    q0 = np.asarray(base.angles, np.float64)
+    best, best_c, shrink = None, np.inf, 1.0
+    for attempt in range(max(1, tries)):
+        amp = shrink * amplitude * (hi - lo) / 2 * rng.uniform(0.3, 1.0, (2,) + q0.shape)
+        freq = rng.uniform(*FREQUENCIES, (2,) + q0.shape)
+        phase = rng.uniform(0, 2 * np.pi, (2,) + q0.shape)
+        qs = [np.clip(q0 + np.sum(amp * np.sin(2 * np.pi * freq * t / fps + phase), 0), lo, hi)
+              for t in range(frames)]
+        worst = 0.0
+        for q in qs:  # the worst frame; stop once it is no better than the best draw
+            worst = max(worst, self_collisions(skel, base._replace(angles=jnp.asarray(q, jnp.float32))))
+            if worst >= best_c:
+                break
+        if worst < best_c:
+            best, best_c = qs, worst
+        if worst == 0:
+            break
+        if (attempt + 1) % max(1, tries // 3) == 0:
+            shrink *= 2 / 3
+    return best
 
 
 def render_sequence(skel: Skeleton, poses: list[Pose], name: str = "sequence", elevation_deg: float = 20.0,
