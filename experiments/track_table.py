@@ -26,6 +26,7 @@ import jax
 import numpy as np
 
 from machine import machine_id, machine_info
+from hard_poses import parse_settings
 from outputs import log
 
 import jaxpose as jp
@@ -35,6 +36,7 @@ from jaxpose.io.atomic import write_json
 from jaxpose.metrics import evaluate
 from jaxpose.search import FitConfig
 from jaxpose.tracking import TrackConfig, Tracker
+from jaxpose.tracking.step import tracked_counts
 
 OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "tracking")
 RECOVERED = 0.9  # a frame is back on track when this fraction of links is placed
@@ -72,7 +74,15 @@ def score(skel, links, view):
     return e["symmetric"]["pcp"], e["symmetric"]["mpjpe_mm"]
 
 
-def run_sequence(skel, seq, config: TrackConfig, seed: int, scratch: FitConfig, full_every: int):
+def track_config(settings: dict) -> TrackConfig:
+    """``TrackConfig()`` with ``settings`` (``fit.<name>`` for the global search's)."""
+    top = {k: v for k, v in settings.items() if "." not in k}
+    fit = {k.split(".", 1)[1]: v for k, v in settings.items() if k.startswith("fit.")}
+    config = dataclasses.replace(TrackConfig(), **top)
+    return dataclasses.replace(config, fit=dataclasses.replace(config.fit, **fit)).validate()
+
+
+def run_sequence(skel, seq, config: TrackConfig, seed: int, scratch: FitConfig | None, full_every: int):
     clouds = clouds_of(seq)
     tracker = Tracker(skel, config, seed=seed)
     frames = []
@@ -83,9 +93,9 @@ def run_sequence(skel, seq, config: TrackConfig, seed: int, scratch: FitConfig, 
         frames.append({"frame": i, "mode": tracker.mode, "seconds": float(r.wall_time), "pcp": pcp, "mpjpe_mm": mp,
                        "absent": v is None, "cost": None if tracker.mode == "lost" else float(r.cost)})
     # the global search from scratch at the tracker's budget, every frame with the subject
-    fitter = jp.Fitter(skel, scratch)
     same = []
-    for i, c in enumerate(clouds):
+    fitter = jp.Fitter(skel, scratch) if scratch is not None else None
+    for i, c in enumerate(clouds if scratch is not None else ()):
         if seq.views[i] is None:
             continue
         r = fitter.run(c, jax.random.key(seed * 1000 + i))
@@ -125,7 +135,7 @@ def summarise(name, frames, same, full, gap):
         "lost_frames": sum(f["mode"] == "lost" for f in frames),
         "absent_frames": sum(f["absent"] for f in frames),
         "frames_to_recover": recover,
-        "scratch_same_budget_pcp": float(np.mean([s[0][0] for s in same])),
+        "scratch_same_budget_pcp": float(np.mean([s[0][0] for s in same])) if same else None,
         "scratch_same_budget_ms": 1000 * float(np.median([s[1] for s in same[1:]])) if len(same) > 1 else None,
         "scratch_full_pcp": float(np.mean([s[0][0] for s in full])) if full else None,
         "scratch_full_frames": len(full),
@@ -133,13 +143,20 @@ def summarise(name, frames, same, full, gap):
     }
 
 
-def same_budget(config: TrackConfig) -> jp.FitConfig:
-    """The global search from scratch with a tracked frame's evaluations: one search (no portfolio, no
-    limb sweep) of one island of the tracker's population for its generations, its refinement at the end."""
-    return dataclasses.replace(config.fit, islands=1, population=config.population, generations=config.generations,
-                               epoch=config.generations, memetic_steps=0, final_refine_top=config.refine_top,
-                               final_refine_steps=config.refine_steps, staged_alternatives=(), limb_sweep=0,
-                               pivot_sweep=0)
+def same_budget(skel, config: TrackConfig) -> jp.FitConfig:
+    """The global search from scratch with a tracked frame's evaluations (its local search and limb
+    sweep, ``tracked_counts``): one search (no portfolio, no sweeps) of one island of the tracker's
+    population for as many generations, the same number of Adam steps at the end."""
+    evals, grads = tracked_counts(skel, config)
+    G = max(1, evals // config.population)
+    top = max(1, config.refine_count)
+    return dataclasses.replace(config.fit, islands=1, population=config.population, generations=G, epoch=G,
+                               memetic_steps=0, final_refine_top=top, final_refine_steps=max(1, grads // top),
+                               staged_alternatives=(), limb_sweep=0, pivot_sweep=0)
+
+
+def _pct(x) -> str:
+    return "" if x is None else f"{100 * x:.1f}%"
 
 
 def table(rows, machine: str) -> str:
@@ -154,7 +171,7 @@ def table(rows, machine: str) -> str:
         lines.append(f"| {r['sequence']} | {r['frames']} | {100 * r['pcp']:.1f}% | {r['mpjpe_mm']:.0f} | "
                      f"{r['fps']:.0f} ({r['median_frame_ms']:.0f}, {r['p90_frame_ms']:.0f}) | "
                      f"{r['first_frame_s']:.0f} | {r['reinitialisations']} | {rec} | "
-                     f"{100 * r['scratch_same_budget_pcp']:.1f}% | {full} |")
+                     f"{_pct(r['scratch_same_budget_pcp'])} | {full} |")
     return "\n".join(lines) + f"\n\nMachine: {machine}.\n"
 
 
@@ -165,9 +182,14 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=FRAMES)
     ap.add_argument("--full-every", type=int, default=30, help="full global search on every N-th frame (0: none)")
     ap.add_argument("--out", default=OUT)
+    ap.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
+                    help="a TrackConfig setting (repeatable; fit.NAME for the global search's)")
+    ap.add_argument("--no-baselines", action="store_true", help="track only (no fits from scratch): for tuning")
     args = ap.parse_args(argv)
+    if args.no_baselines:
+        args.full_every = 0
     os.makedirs(args.out, exist_ok=True)
-    config = TrackConfig()
+    config = track_config(parse_settings(args.settings))
     rows, details = [], {}
     for model in args.models:
         t0 = time.time()
@@ -175,13 +197,14 @@ def main(argv=None) -> int:
         log(f"{model}: {len(seqs)} sequences rendered in {time.time() - t0:.0f} s")
         cfg = config.for_skeleton(skel)
         for seq in seqs:
-            frames, same, full = run_sequence(skel, seq, cfg, args.seed, same_budget(cfg), args.full_every)
+            scratch = None if args.no_baselines else same_budget(skel, cfg)
+            frames, same, full = run_sequence(skel, seq, cfg, args.seed, scratch, args.full_every)
             row = summarise(seq.name, frames, same, full, seq.meta.get("gap"))
             rows.append(row)
             details[seq.name] = frames
             log(f"  {seq.name}: PCP {100 * row['pcp']:.1f}%, {row['fps'] or 0:.0f} frames/s, re-inits "
                 f"{row['reinitialisations']}, recover {row['frames_to_recover']}, scratch same budget "
-                f"{100 * row['scratch_same_budget_pcp']:.1f}%, full {row['scratch_full_pcp']}")
+                f"{_pct(row['scratch_same_budget_pcp'])}, full {_pct(row['scratch_full_pcp'])}")
     machine = machine_id()
     write_json(os.path.join(args.out, "track_table.json"),
                {"rows": rows, "frames": details, "seed": args.seed, "config": config.to_dict(),

@@ -122,21 +122,26 @@ def limb_sweep(skel: Skeleton, config: FitConfig, cost, genome, genome_cost, key
             pop = jnp.where(mask, pop, g[None])
             return pivot_root(skel, bounds, pop, k, links.R_world_link[k], links.origin[k])
 
-        g, f = _sweep(skel, config, cost, g, f, k_pivot, learning_rate, masks, jnp.asarray(pivots), around,
-                      config.pivot_sweep)
+        g, f = sweep_rows(skel, config, cost, g, f, k_pivot, learning_rate, masks, jnp.asarray(pivots), around,
+                          config.pivot_sweep)
     if config.limb_sweep:
         masks = jnp.asarray(sweep_masks(skel))
-        held = lambda pop, g, mask, k: jnp.where(mask, pop, g[None])  # noqa: E731
-        rows = jnp.zeros(masks.shape[0], jnp.int32)  # (unused by `held`)
-        g, f = _sweep(skel, config, cost, g, f, k_limb, learning_rate, masks, rows, held, config.limb_sweep)
+        rows = jnp.zeros(masks.shape[0], jnp.int32)  # (unused by `hold`)
+        g, f = sweep_rows(skel, config, cost, g, f, k_limb, learning_rate, masks, rows, hold, config.limb_sweep)
     return g, f
 
 
-def _sweep(skel: Skeleton, config: FitConfig, cost, genome, genome_cost, key, learning_rate, masks, links, prepare,
-           G: int):
+def hold(pop, genome, mask, link):
+    """A limb sweep's ``prepare``: every gene outside ``mask`` held at ``genome``'s."""
+    return jnp.where(mask, pop, genome[None])
+
+
+def sweep_rows(skel: Skeleton, config: FitConfig, cost, genome, genome_cost, key, learning_rate, masks, links,
+               prepare, G: int, steps: int = SWEEP_REFINE_STEPS):
     """One small GA per row of ``masks (K, D)`` (``links (K,)``: a number each row passes to
     ``prepare(pop, best, mask, link) -> pop``, which sets the genes the row holds), one row
-    after another from the best so far; Adam polishes each row's best few."""
+    after another from the best so far; Adam polishes each row's best few (``steps`` steps,
+    none when 0 or when ``config``'s final refinement is off).  Returns ``(genome, cost)``."""
     P = config.population
     D = genome.shape[-1]
     decay = (config.std_final / config.std_init) ** (1.0 / max(G, 1))
@@ -165,9 +170,9 @@ def _sweep(skel: Skeleton, config: FitConfig, cost, genome, genome_cost, key, le
 
         state, _ = jax.lax.scan(generation, state, jax.random.split(k_run, G - 1)) if G > 1 else (state, None)
         best_g, best_f = state.best_solution, state.best_fitness
-        if config.final_refine_on:
+        if config.final_refine_on and steps > 0:
             order = jnp.argsort(state.fitness)[:top]
-            rg, rf = refine(cost, state.population[order], jnp.int32(SWEEP_REFINE_STEPS), learning_rate)
+            rg, rf = refine(cost, state.population[order], jnp.int32(steps), learning_rate)
             best_g, best_f = keep_better(rg, rf, best_g, best_f)
         return keep_better(best_g[None], best_f[None], g, f), None
 

@@ -33,6 +33,15 @@ class TrackConfig:
     branch_reset_rate: float = 0.02
     """Probability that a child of the local search draws one subtree anew (a limb
     jumping to another place)."""
+    sweep_limbs: int = 2
+    """Limbs (subtrees, jaxpose.search.sweep_masks) searched anew in every tracked frame,
+    in turn over the frames: a small GA over the limb's joint angles from uniform draws,
+    the rest held, kept when cheaper; it repairs a limb the global search put in the
+    wrong place while the subject moves (0: off)."""
+    sweep_generations: int = 6
+    """Generations of each swept limb's GA (``population`` individuals)."""
+    sweep_steps: int = 10
+    """Adam steps that polish each swept limb's best ``refine_top`` (0: none)."""
     refine_top: int = 2
     """How many of the local search's best individuals take ``refine_steps`` Adam steps."""
     refine_steps: int = 15
@@ -70,6 +79,9 @@ class TrackConfig:
         require_integer("generations", self.generations, 1)
         require_integer("refine_top", self.refine_top, 0)
         require_integer("refine_steps", self.refine_steps, 0)
+        require_integer("sweep_limbs", self.sweep_limbs, 0)
+        require_integer("sweep_generations", self.sweep_generations, 1)
+        require_integer("sweep_steps", self.sweep_steps, 0)
         require_integer("min_points", self.min_points, 1)
         for name in ("std", "std_final", "learning_rate", "turn", "move"):
             if not require_finite(name, getattr(self, name)) > 0:

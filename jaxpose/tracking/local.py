@@ -1,4 +1,5 @@
-"""A tracked frame: a small GA around the motion model's prediction, then Adam.
+"""A tracked frame: a small GA around the motion model's prediction, then Adam, then
+a sweep of a few limbs in turn (docs/tracking.md, "One frame").
 
 The local search works on its own genome bounds, centred on the prediction: the
 root may move ``TrackConfig.move`` (times the scale) and turn ``TrackConfig.turn``
@@ -28,6 +29,7 @@ from ..search.genes import tie_lengths
 from ..search.loop import make_algorithm, start_algorithm
 from ..search.memetic import keep_better
 from ..search.refine import refine
+from ..search.sweep import hold, sweep_masks, sweep_rows
 from ..skeleton import Pose, Skeleton
 from .config import TrackConfig
 
@@ -83,9 +85,11 @@ def local_cost_fn(skel: Skeleton, fit: FitConfig, obs: Observation, bounds: Boun
     return cost
 
 
-def local_fit(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, last: Pose, key) -> LocalFit:
+def local_fit(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, last: Pose, key,
+              frame=0) -> LocalFit:
     """Search around the prediction ``pred`` (``last``: the last frame's pose, also in
-    the first population) and refine the best.  ``config.fit`` must be resolved."""
+    the first population), refine the best, then sweep ``config.sweep_limbs`` limbs (the
+    ``frame``-th in turn).  ``config.fit`` must be resolved."""
     fit = config.fit
     obs = observe(cloud, fit.objective)
     bounds = local_bounds(skel, config, pred)
@@ -104,7 +108,7 @@ def local_fit(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, las
                              std_final=config.std_final, islands=1, staged=0.0)
     params = fit.params().replace(branch_reset_rate=jnp.float32(config.branch_reset_rate))
     algo, algo_params = make_algorithm(skel, ga, params)
-    k_pop, k_init, k_run = jax.random.split(key, 3)
+    k_pop, k_init, k_run, k_sweep = jax.random.split(key, 4)
     noise = config.std * jax.random.normal(k_pop, (P - 2, g_pred.shape[0]))
     pop0 = jnp.clip(jnp.concatenate([g_pred[None], g_last[None], g_pred + noise]), 0.0, 1.0)
     f0 = cost(pop0)
@@ -122,9 +126,24 @@ def local_fit(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, las
         order = jnp.argsort(state.fitness)[: config.refine_count]
         g, f = refine(cost, state.population[order], jnp.int32(config.refine_steps), config.learning_rate)
         best_g, best_f = keep_better(g, f, best_g, best_f)
+    if config.sweep_limbs:
+        best_g, best_f = sweep_limbs(skel, config, cost, best_g, best_f, k_sweep, frame)
     history = jnp.concatenate([jnp.min(f0)[None], hist]).at[-1].set(best_f)
     if fit.tie_lengths:
         best_g = tie_lengths(skel, best_g)
     pose = local_decode(skel, bounds, R_pred, best_g)
     # the cost reported (and compared with the global search's) is the objective alone
     return LocalFit(pose, best_g, forward_kinematics(skel, pose), objective(best_g[None])[0], history)
+
+
+def sweep_limbs(skel: Skeleton, config: TrackConfig, cost, genome, genome_cost, key, frame):
+    """The search's limb sweep (:func:`~jaxpose.search.sweep_rows`) over ``config.sweep_limbs``
+    limbs, taken in turn: frame ``t`` sweeps rows ``t n, ..., t n + n - 1`` (mod K) of
+    :func:`~jaxpose.search.sweep_masks`, so every limb is searched anew every ``K / n``
+    frames.  Mutation steps as the global search's (``config.fit``): the draws are uniform."""
+    all_masks = jnp.asarray(sweep_masks(skel))
+    n = min(config.sweep_limbs, all_masks.shape[0])
+    rows = (jnp.asarray(frame, jnp.int32) * n + jnp.arange(n)) % all_masks.shape[0]
+    fit = dataclasses.replace(config.fit, population=config.population)
+    return sweep_rows(skel, fit, cost, genome, genome_cost, key, config.learning_rate, all_masks[rows],
+                      jnp.zeros(n, jnp.int32), hold, config.sweep_generations, config.sweep_steps)

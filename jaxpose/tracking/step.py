@@ -30,6 +30,7 @@ from ..geometry import matrix_to_rpy, rpy_matrix
 from ..kinematics import forward_kinematics
 from ..objective import Cloud
 from ..search import FitResult, Fitter, fit
+from ..search.sweep import SWEEP_REFINE_TOP, sweep_masks
 from ..skeleton import Pose, Skeleton
 from .config import TrackConfig
 from .local import local_fit
@@ -95,18 +96,28 @@ def _nan_result(skel: Skeleton, config: TrackConfig) -> FitResult:
                      zero, zero, jnp.asarray(0.0, jnp.float32), jnp.asarray(0.0, jnp.float32))
 
 
-def _tracked_result(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, last: Pose, key) -> FitResult:
+def _tracked_result(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, last: Pose, key,
+                    frame) -> FitResult:
     """The local search's outcome as a :class:`FitResult` (history padded with its last
     cost to the global search's length, as a time-budgeted fit's is)."""
-    r = local_fit(skel, config, cloud, pred, last, key)
+    r = local_fit(skel, config, cloud, pred, last, key, frame)
     G = config.fit.generations
     h = r.history[:G]
     history = jnp.concatenate([h, jnp.full((G - h.shape[0],), h[-1])]) if h.shape[0] < G else h
-    evals = config.population * config.generations
-    grads = config.refine_count * config.refine_steps
+    evals, grads = tracked_counts(skel, config)
     dist = jnp.float32(evals + grads) * cloud.points.shape[0] * skel.num_links
     return FitResult(r.pose, r.genome, r.links, r.cost, history, jnp.asarray(evals, jnp.int32),
                      jnp.asarray(grads, jnp.int32), dist, jnp.asarray(0.0, jnp.float32))
+
+
+def tracked_counts(skel: Skeleton, config: TrackConfig) -> tuple[int, int]:
+    """``(objective evaluations, gradient evaluations)`` of one tracked frame: the local
+    search, its refinement and the limb sweep."""
+    n = min(config.sweep_limbs, len(sweep_masks(skel)))
+    top = min(SWEEP_REFINE_TOP, config.population)
+    steps = config.sweep_steps if config.fit.final_refine_on else 0
+    evals = config.population * (config.generations + n * config.sweep_generations)
+    return evals, config.refine_count * config.refine_steps + n * top * steps
 
 
 def _select(c, a, b):
@@ -131,7 +142,8 @@ def _local_part(skel: Skeleton, config: TrackConfig, state: TrackState, cloud: C
     present = points >= config.min_points
     pred, last = predict(skel, config, state)
     run_local = present & state.valid
-    local = jax.lax.cond(run_local, lambda: _tracked_result(skel, config, cloud, pred, last, k_local),
+    local = jax.lax.cond(run_local, lambda: _tracked_result(skel, config, cloud, pred, last, k_local,
+                                                                        state.frame),
                          lambda: _nan_result(skel, config))
     lost = ~(local.cost <= config.loss_ratio * state.reference)  # NaN (not run) counts as lost
     return _Pending(local, points, present, run_local, present & (~state.valid | lost), k_global)

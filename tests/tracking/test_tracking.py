@@ -146,7 +146,9 @@ def test_a_frame_without_the_subject_is_lost(tracked):
     assert np.all(np.isnan(np.asarray(lost.result.links.end))) and np.isnan(float(lost.result.cost))
     assert int(lost.result.objective_evaluations) == 0 and np.isnan(float(lost.tracked_cost))
     r = frame(tracked, 1).result
-    assert int(r.objective_evaluations) == CFG.population * CFG.generations
+    # the local GA, then the limb sweep's GA on sweep_limbs of the spider's 8 limbs; no sweep Adam (FIT has
+    # the final refinement off, which turns the sweep's polish off too)
+    assert int(r.objective_evaluations) == CFG.population * (CFG.generations + CFG.sweep_limbs * CFG.sweep_generations)
     assert int(r.gradient_evaluations) == CFG.refine_top * CFG.refine_steps
 
 
