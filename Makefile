@@ -40,6 +40,7 @@ paper: $(STAMP)
 		--plots 2 --out experiments/results/mujoco_views_uniform
 	$(BIN)/python experiments/hard_poses.py
 	$(BIN)/python experiments/track_table.py
+	$(BIN)/python experiments/mujoco_track.py
 
 sweep: $(STAMP)
 	$(BIN)/python experiments/sweep_population.py
