@@ -117,9 +117,9 @@ def run_model(path: str, frames: int, seed: int, spread: float, amplitude: float
                      "cost": None if lost else float(r.cost)})
     renderer.close()
     tracked = [f["seconds"] for f in rows if f["mode"] == "tracked"]
-    pcps = [f["pcp"] for f in rows if f["pcp"] is not None]
+    pcps = [f["pcp"] or 0.0 for f in rows]  # the model never leaves the view: a lost frame placed nothing
     return {"model": os.path.splitext(os.path.basename(path))[0], "links": skel.num_links, "frames": len(rows),
-            "pcp": float(np.mean(pcps)) if pcps else None, "pcp_min": float(np.min(pcps)) if pcps else None,
+            "pcp": float(np.mean(pcps)), "pcp_min": float(np.min(pcps)),
             "frames_5cm": float(np.mean([f["frames_5cm"] for f in rows])),
             "fps": len(tracked) / sum(tracked) if tracked else None,
             "median_frame_ms": 1000 * float(np.median(tracked)) if tracked else None,
@@ -131,20 +131,27 @@ def markdown(rows, machine: str) -> str:
     lines = ["| model | links | frames | PCP per frame (lowest) | frames@5cm | frames/s (median ms) | first frame s "
              "| global frames |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        pcp = "-" if r["pcp"] is None else f"{100 * r['pcp']:.1f}% ({100 * r['pcp_min']:.0f}%)"
+        pcp = f"{100 * r['pcp']:.1f}% ({100 * r['pcp_min']:.0f}%)"
         fps = "-" if r["fps"] is None else f"{r['fps']:.0f} ({r['median_frame_ms']:.0f})"
         lines.append(f"| {r['model']} | {r['links']} | {r['frames']} | {pcp} | {100 * r['frames_5cm']:.1f}% | {fps} "
                      f"| {r['first_frame_s']:.0f} | {r['global_frames']} |")
     return "\n".join(lines) + f"\n\nMachine: {machine}. Rendered by MuJoCo; symmetric PCP, frames@5cm strict.\n"
 
 
+def _amplitude(text: str) -> float:
+    v = float(text)
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must lie in [0, 1], got {text}")
+    return v
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", nargs="+", default=MODELS, help="MJCF or URDF files, or gymnasium:NAME.xml")
-    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--frames", type=MV._at_least_one, default=60)
     ap.add_argument("--seed", type=int, default=2, help="the motions' and cameras' draw (default 2)")
     ap.add_argument("--spread", type=MV.spread_arg, default=0.3, help="the base pose's spread (as mujoco_views)")
-    ap.add_argument("--amplitude", type=float, default=0.2, help="the sines' amplitude, of half each range")
+    ap.add_argument("--amplitude", type=_amplitude, default=0.2, help="the sines' amplitude, of half each range")
     ap.add_argument("--out", default=OUT)
     args = ap.parse_args(argv)
     problem = MV.gl_problem()
@@ -165,11 +172,12 @@ def main(argv=None) -> int:
             print(f"{os.path.basename(path)}: skipped: {' '.join(str(e).split())[:200]}", flush=True)
             continue
         rows.append(row)
-        print(f"{row['model']}: PCP {100 * (row['pcp'] or 0):.1f}%, frames@5cm {100 * row['frames_5cm']:.1f}%, "
+        print(f"{row['model']}: PCP {100 * row['pcp']:.1f}%, frames@5cm {100 * row['frames_5cm']:.1f}%, "
               f"{row['fps'] or 0:.0f} frames/s, {time.time() - t0:.0f} s in all", flush=True)
     machine = machine_id()
     write_json(os.path.join(args.out, "mujoco_track.json"),
-               {"machine": machine_info(), "seed": args.seed, "spread": args.spread, "amplitude": args.amplitude,
+               {"machine": machine_info(), "seed": args.seed, "amplitude": args.amplitude,
+                "spread": "uniform" if args.spread is None else args.spread,
                 "config": jp.TrackConfig().to_dict(), "rows": rows})
     table = markdown(rows, machine)
     write_text(os.path.join(args.out, "mujoco_track.md"), table)

@@ -75,11 +75,20 @@ def score(skel, links, view):
 
 
 def track_config(settings: dict) -> TrackConfig:
-    """``TrackConfig()`` with ``settings`` (``fit.<name>`` for the global search's)."""
-    top = {k: v for k, v in settings.items() if "." not in k}
-    fit = {k.split(".", 1)[1]: v for k, v in settings.items() if k.startswith("fit.")}
-    config = dataclasses.replace(TrackConfig(), **top)
-    return dataclasses.replace(config, fit=dataclasses.replace(config.fit, **fit)).validate()
+    """``TrackConfig()`` with ``settings`` (``fit.<name>`` for the global search's, ``fit.objective.<name>``
+    for its cost's, as ``hard_poses.config_with``); an unknown name is a ``SystemExit`` naming it."""
+    from hard_poses import config_with
+
+    fields = {f.name for f in dataclasses.fields(TrackConfig)} - {"fit"}
+    wrong = [k for k in settings if not (k in fields or k.startswith("fit."))]
+    if wrong:
+        raise SystemExit(f"--set {wrong[0]}: not a TrackConfig setting (nor fit.NAME): {sorted(fields)}")
+    top = {k: tuple(v) if isinstance(v, list) else v for k, v in settings.items() if k in fields}
+    try:
+        fit = config_with({k.split(".", 1)[1]: v for k, v in settings.items() if k.startswith("fit.")})
+        return dataclasses.replace(TrackConfig(), fit=fit, **top).validate()
+    except TypeError as e:  # an unknown FitConfig or ObjectiveConfig name
+        raise SystemExit(f"--set: {e}") from None
 
 
 def run_sequence(skel, seq, config: TrackConfig, seed: int, scratch: FitConfig | None, full_every: int):
@@ -148,10 +157,10 @@ def same_budget(skel, config: TrackConfig) -> jp.FitConfig:
     sweep, ``tracked_counts``): one search (no portfolio, no sweeps) of one island of the tracker's
     population for as many generations, the same number of Adam steps at the end."""
     evals, grads = tracked_counts(skel, config)
-    G = max(1, evals // config.population)
+    G = max(1, -(-evals // config.population))  # rounded up: never less than the tracker's budget
     top = max(1, config.refine_count)
     return dataclasses.replace(config.fit, islands=1, population=config.population, generations=G, epoch=G,
-                               memetic_steps=0, final_refine_top=top, final_refine_steps=max(1, grads // top),
+                               memetic_steps=0, final_refine_top=top, final_refine_steps=-(-grads // top),
                                staged_alternatives=(), limb_sweep=0, pivot_sweep=0)
 
 

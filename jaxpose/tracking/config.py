@@ -34,7 +34,7 @@ class TrackConfig:
     """Probability that a child of the local search draws one subtree anew (a limb
     jumping to another place)."""
     sweep_limbs: int = 0
-    """Limbs (subtrees, jaxpose.search.sweep_masks) searched anew in every tracked frame,
+    """Limbs (subtrees, jaxpose.search.sweep.sweep_masks) searched anew in every tracked frame,
     in turn over the frames: a small GA over the limb's joint angles from uniform draws,
     the rest held, kept when cheaper (0: off, the default: on held-out sequences it
     changed the humanoid's accuracy by -1.2 to +1.7 points at 3x the frame time,
@@ -42,7 +42,8 @@ class TrackConfig:
     sweep_generations: int = 6
     """Generations of each swept limb's GA (``population`` individuals)."""
     sweep_steps: int = 10
-    """Adam steps that polish each swept limb's best ``refine_top`` (0: none)."""
+    """Adam steps that polish each swept limb's best 2 (``search.sweep.SWEEP_REFINE_TOP``;
+    0: none; none either when the global search's final refinement is off, ``--no-refine``)."""
     refine_top: int = 2
     """How many of the local search's best individuals take ``refine_steps`` Adam steps."""
     refine_steps: int = 15

@@ -1,5 +1,6 @@
 """A tracked frame: a small GA around the motion model's prediction, then Adam, then
-a sweep of a few limbs in turn (docs/tracking.md, "One frame").
+(optional, ``TrackConfig.sweep_limbs``) a sweep of a few limbs in turn (docs/tracking.md,
+"One frame").
 
 The local search works on its own genome bounds, centred on the prediction: the
 root may move ``TrackConfig.move`` (times the scale) and turn ``TrackConfig.turn``
@@ -137,9 +138,9 @@ def local_fit(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, las
 
 
 def sweep_limbs(skel: Skeleton, config: TrackConfig, cost, genome, genome_cost, key, frame):
-    """The search's limb sweep (:func:`~jaxpose.search.sweep_rows`) over ``config.sweep_limbs``
+    """The search's limb sweep (:func:`~jaxpose.search.sweep.sweep_rows`) over ``config.sweep_limbs``
     limbs, taken in turn: frame ``t`` sweeps rows ``t n, ..., t n + n - 1`` (mod K) of
-    :func:`~jaxpose.search.sweep_masks`, so every limb is searched anew every ``K / n``
+    :func:`~jaxpose.search.sweep.sweep_masks`, so every limb is searched anew every ``K / n``
     frames.  Mutation steps as the global search's (``config.fit``): the draws are uniform."""
     all_masks = jnp.asarray(sweep_masks(skel))
     n = min(config.sweep_limbs, all_masks.shape[0])

@@ -15,6 +15,7 @@ import pytest
 import jaxpose as jp
 from jaxpose.search.sweep import sweep_masks
 from jaxpose.tracking import TrackConfig
+from jaxpose.tracking import local as L
 from jaxpose.tracking.local import local_fit
 from jaxpose.tracking.step import tracked_counts
 from test_tracking import CFG, surface_cloud, true_pose
@@ -71,3 +72,29 @@ def test_a_tracked_frame_counts_the_sweep():
     assert tracked_counts(skel, many) == (10 * 3 + K * 10 * 4, 2 * 5 + K * 2 * 7)
     off = dataclasses.replace(c, sweep_limbs=0)
     assert tracked_counts(skel, off) == (10 * 3, 2 * 5)
+
+
+@pytest.mark.parametrize("final_refine", [False, True])
+def test_a_tracked_frame_runs_the_evaluations_it_counts(setting, monkeypatch, final_refine):
+    # the oracle: every row the objective scores, counted as it runs (the GA, Adam, the sweep, the final score)
+    skel, truth, wrong, cloud, legs = setting
+    rows: list[int] = []
+    real = L.local_cost_fn
+
+    def counting(*args, **kwargs):
+        cost = real(*args, **kwargs)
+
+        def counted(genomes):
+            jax.debug.callback(lambda n: rows.append(int(n)), jnp.int32(genomes.shape[0]))
+            return cost(genomes)
+        return counted
+
+    monkeypatch.setattr(L, "local_cost_fn", counting)
+    fit = dataclasses.replace(CFG.fit, final_refine_steps=5 if final_refine else 0)
+    config = dataclasses.replace(CFG, fit=fit, population=6, refine_top=3, refine_steps=4, sweep_limbs=3,
+                                 sweep_generations=2, sweep_steps=3)
+    jax.block_until_ready(_fit(skel, config, cloud, wrong, 5))
+    jax.effects_barrier()
+    evals, grads = tracked_counts(skel, config.for_skeleton(skel))
+    assert sum(rows) == evals + grads + 1  # + the reported cost of the best
+    assert grads == 3 * 4 + (3 * 2 * 3 if final_refine else 0)
