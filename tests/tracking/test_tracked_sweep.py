@@ -74,9 +74,9 @@ def test_a_tracked_frame_counts_the_sweep():
     assert tracked_counts(skel, off) == (10 * 3, 2 * 5)
 
 
-@pytest.mark.parametrize("final_refine", [False, True])
-def test_a_tracked_frame_runs_the_evaluations_it_counts(setting, monkeypatch, final_refine):
-    # the oracle: every row the objective scores, counted as it runs (the GA, Adam, the sweep, the final score)
+def test_a_tracked_frame_runs_the_evaluations_it_counts(setting, monkeypatch):
+    # the oracle: every row the objective scores, counted as it runs (the GA, Adam, the sweep, the final score);
+    # with the final refinement on, so that the sweep's Adam runs too (off: test_tracking's count)
     skel, truth, wrong, cloud, legs = setting
     rows: list[int] = []
     real = L.local_cost_fn
@@ -90,11 +90,11 @@ def test_a_tracked_frame_runs_the_evaluations_it_counts(setting, monkeypatch, fi
         return counted
 
     monkeypatch.setattr(L, "local_cost_fn", counting)
-    fit = dataclasses.replace(CFG.fit, final_refine_steps=5 if final_refine else 0)
+    fit = dataclasses.replace(CFG.fit, final_refine_steps=5)
     config = dataclasses.replace(CFG, fit=fit, population=6, refine_top=3, refine_steps=4, sweep_limbs=3,
                                  sweep_generations=2, sweep_steps=3)
     jax.block_until_ready(_fit(skel, config, cloud, wrong, 5))
     jax.effects_barrier()
     evals, grads = tracked_counts(skel, config.for_skeleton(skel))
     assert sum(rows) == evals + grads + 1  # + the reported cost of the best
-    assert grads == 3 * 4 + (3 * 2 * 3 if final_refine else 0)
+    assert grads == 3 * 4 + 3 * 2 * 3  # the local refinement's, then each swept limb's best 2
