@@ -40,25 +40,13 @@ FPS = 30.0
 
 
 def moving_joints(m, root_joints: bool) -> list[tuple[int, float, float]]:
-    """``(qpos address, low, high)`` of the hinges and slides that move (the root body's stay, as in
-    ``mujoco_views.random_qpos``; unlimited ones get half a turn or the model's size each way)."""
+    """``(qpos address, low, high)`` of the hinges and slides that move: all but the root body's
+    (``root_joints``), as in ``mujoco_views.random_qpos``; spans from ``mujoco_views.joint_span``."""
     import mujoco
 
-    hinge, slide = int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)
-    top = [b for b in range(1, m.nbody) if m.body_parentid[b] == 0]
-    out = []
-    for j in range(m.njnt):
-        t = int(m.jnt_type[j])
-        if t not in (hinge, slide) or (root_joints and len(top) == 1 and m.jnt_bodyid[j] == top[0]):
-            continue
-        a = int(m.jnt_qposadr[j])
-        if m.jnt_limited[j]:
-            lo, hi = (float(x) for x in m.jnt_range[j])
-        else:
-            r = np.pi if t == hinge else 0.5 * float(m.stat.extent)
-            lo, hi = float(m.qpos0[a]) - r, float(m.qpos0[a]) + r
-        out.append((a, lo, hi))
-    return out
+    moving = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    return [(int(m.jnt_qposadr[j]), *MV.joint_span(m, j)) for j in range(m.njnt)
+            if int(m.jnt_type[j]) in moving and not (root_joints and MV.is_root_joint(m, j))]
 
 
 def qpos_motion(m, base, joints, rng, frames: int, amplitude: float) -> np.ndarray:

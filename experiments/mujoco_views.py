@@ -118,17 +118,12 @@ def random_qpos(m, rng, spread: float | None, root_joints: bool = True) -> np.nd
     hinge, slide, ball = (int(t) for t in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE,
                                            mujoco.mjtJoint.mjJNT_BALL))
     q = m.qpos0.copy()
-    top = [b for b in range(1, m.nbody) if m.body_parentid[b] == 0]
     for j in range(m.njnt):
         a, t = int(m.jnt_qposadr[j]), int(m.jnt_type[j])
-        if root_joints and len(top) == 1 and m.jnt_bodyid[j] == top[0]:
+        if root_joints and is_root_joint(m, j):
             continue  # the root body's joints (a planar walker's rootx/rootz/rooty) are the root pose
         if t in (hinge, slide):
-            if m.jnt_limited[j]:
-                lo, hi = m.jnt_range[j]
-            else:
-                r = np.pi if t == hinge else 0.5 * m.stat.extent
-                lo, hi = q[a] - r, q[a] + r
+            lo, hi = joint_span(m, j)
             if spread is None:
                 q[a] = rng.uniform(lo, hi)
             else:
@@ -141,6 +136,25 @@ def random_qpos(m, rng, spread: float | None, root_joints: bool = True) -> np.nd
             angle = spread * np.pi / 2 * abs(rng.standard_normal())
             q[a : a + 4] = np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis / np.linalg.norm(axis)])
     return q
+
+
+def is_root_joint(m, j: int) -> bool:
+    """Joint ``j`` belongs to the only top-level body (a free joint, a planar walker's root slides and hinge)."""
+    top = [b for b in range(1, m.nbody) if m.body_parentid[b] == 0]
+    return len(top) == 1 and m.jnt_bodyid[j] == top[0]
+
+
+def joint_span(m, j: int) -> tuple[float, float]:
+    """``(low, high)`` of hinge or slide ``j``: its range, or unlimited, half a turn (a slide: half the
+    model's size) each way from ``qpos0``."""
+    import mujoco
+
+    if m.jnt_limited[j]:
+        lo, hi = m.jnt_range[j]
+        return float(lo), float(hi)
+    a = int(m.jnt_qposadr[j])
+    r = np.pi if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE) else 0.5 * float(m.stat.extent)
+    return float(m.qpos0[a]) - r, float(m.qpos0[a]) + r
 
 
 def camera_view(m, d, rng, width: int, height: int):
