@@ -23,13 +23,13 @@ from oracles import brute_cost
 N = 128  # points per cloud
 T = 6  # frames
 # the settings of `jaxpose track --islands 1 --population 16 --generations 25 --no-refine --track-population 12
-# --track-generations 3 --track-refine-steps 8 --track-sweep 2 --limb-sweep 0 --pivot-sweep 0 --max-points 128`, so
+# --track-generations 3 --track-refine-steps 8 --limb-sweep 0 --pivot-sweep 0 --max-points 128`, so
 # that its test reuses these programs.  No sweeps in the global search: on a search this short they do most of the
 # work, and a GA from fresh draws turns the round-off between differently compiled programs into different answers
 # (docs/search.md, "Limb sweep").
 FIT = jp.FitConfig(islands=1, population=16, generations=25, memetic_steps=0, final_refine_steps=0, limb_sweep=0,
                    pivot_sweep=0)
-CFG = TrackConfig(fit=FIT, population=12, generations=3, refine_steps=8, sweep_limbs=2)  # the sweep path too
+CFG = TrackConfig(fit=FIT, population=12, generations=3, refine_steps=8)  # the tracked sweep: test_tracked_sweep
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 
 
