@@ -85,7 +85,8 @@ def joint_motion(skel: Skeleton, base: Pose, rng, frames: int, fps: float, ampli
     """Every frame's joint values: two sines per joint around ``base``'s, clipped to the limits.
     A draw in which the body passes through itself in any frame
     (:func:`~jaxpose.datasets.self_collisions`) is drawn again, its amplitudes shrunk by a
-    third after every ``tries // 3`` failures; after ``tries`` the least colliding is kept."""
+    third after every ``tries // 3`` failures; after ``tries`` the draw whose worst frame
+    collides least is kept."""
     lo, hi = np.asarray(skel.angle_lo, np.float64), np.asarray(skel.angle_hi, np.float64)
     q0 = np.asarray(base.angles, np.float64)
     best, best_c, shrink = None, np.inf, 1.0
