@@ -81,6 +81,9 @@ def register(sub) -> None:
                    help=f"Adam steps that finish a tracked frame (default {t.refine_steps})")
     k.add_argument("--track-sweep", type=int, default=t.sweep_limbs,
                    help=f"limbs searched anew per tracked frame, in turn (0: off; default {t.sweep_limbs})")
+    k.add_argument("--track-recheck", type=int, default=t.recheck_every, metavar="N",
+                   help="every N frames also run the global search and keep the cheaper fit (a fit wrong from "
+                        f"the start gets another chance; each costs a global fit; 0: never, default {t.recheck_every})")
     k.add_argument("--min-points", type=int, default=t.min_points,
                    help=f"a frame with fewer points is lost: the subject is out of view (default {t.min_points})")
     k.add_argument("--loss-ratio", type=float, default=t.loss_ratio,
@@ -92,6 +95,7 @@ def register(sub) -> None:
 
 TRACK_FLAGS = {"population": "--track-population", "generations": "--track-generations",
                "refine_steps": "--track-refine-steps", "sweep_limbs": "--track-sweep", "min_points": "--min-points",
+               "recheck_every": "--track-recheck",
                "loss_ratio": "--loss-ratio"}
 
 
@@ -103,7 +107,7 @@ def track_config_from_args(args):
     fit = config_from_args(args)
     cfg = TrackConfig(fit=fit, population=args.track_population, generations=args.track_generations,
                       refine_steps=args.track_refine_steps, sweep_limbs=args.track_sweep,
-                      min_points=args.min_points, loss_ratio=args.loss_ratio)
+                      recheck_every=args.track_recheck, min_points=args.min_points, loss_ratio=args.loss_ratio)
     try:
         return cfg.validate()
     except ConfigError as e:

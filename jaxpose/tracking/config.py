@@ -73,6 +73,12 @@ class TrackConfig:
     the last frames, ``cost_memory``) has lost the subject: the global search runs."""
     cost_memory: float = 0.8
     """Weight of the past in the recent cost (an exponential moving average)."""
+    recheck_every: int = 0
+    """Every this many frames (frame ``t`` with ``t % recheck_every == 0``, ``t > 0``) a
+    tracked frame also runs the global search, and the cheaper result is kept: a fit
+    wrong from the start (which the loss test, comparing a frame with its predecessors,
+    cannot see) gets another chance.  Such a frame costs a global fit (0: never, the
+    default for live use; docs/tracking.md, "Rechecks")."""
 
     def validate(self) -> "TrackConfig":
         """Raise :class:`ConfigError` naming the first impossible setting; return ``self``."""
@@ -85,6 +91,7 @@ class TrackConfig:
         require_integer("sweep_generations", self.sweep_generations, 1)
         require_integer("sweep_steps", self.sweep_steps, 0)
         require_integer("min_points", self.min_points, 1)
+        require_integer("recheck_every", self.recheck_every, 0)
         for name in ("std", "std_final", "learning_rate", "turn", "move"):
             if not require_finite(name, getattr(self, name)) > 0:
                 raise ConfigError(f"{name} must be > 0, got {getattr(self, name)!r}")

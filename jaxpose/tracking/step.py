@@ -7,7 +7,8 @@ the last frame was fitted, the motion model predicts this frame's pose and the
 local search (:func:`~jaxpose.tracking.local.local_fit`) fits it (*tracked*).  When
 there is no last pose, or the tracked cost exceeds ``loss_ratio`` times the recent
 cost, the global search (:func:`~jaxpose.search.fit`) fits the frame (*global*) and
-the better of the two results is kept.
+the better of the two results is kept.  Every ``recheck_every`` frames the global
+search runs beside the local one too (a recheck), the better result kept.
 
 Random numbers: frame ``t`` uses ``jax.random.fold_in(key, t)``, split in two: the
 first key for the global search, the second for the local one; so a frame's global
@@ -146,7 +147,8 @@ def _local_part(skel: Skeleton, config: TrackConfig, state: TrackState, cloud: C
                                                                         state.frame),
                          lambda: _nan_result(skel, config))
     lost = ~(local.cost <= config.loss_ratio * state.reference)  # NaN (not run) counts as lost
-    return _Pending(local, points, present, run_local, present & (~state.valid | lost), k_global)
+    recheck = (state.frame > 0) & (state.frame % config.recheck_every == 0) if config.recheck_every else False
+    return _Pending(local, points, present, run_local, present & (~state.valid | lost | recheck), k_global)
 
 
 def _finish_part(config: TrackConfig, state: TrackState, p: _Pending, glob: FitResult):

@@ -92,6 +92,7 @@ def test_a_stack_names_its_frames_by_number(sequence, tmp_path):
     ("video", ["{seq}/frames", "--video", "{tmp}/v.avi"], "--video {tmp}/v.avi: expected a .gif or .mp4 file"),
     ("population", ["{seq}/frames", "--track-population", "1"], "--track-population must be"),
     ("sweep", ["{seq}/frames", "--track-sweep", "-1"], "--track-sweep must be"),
+    ("recheck", ["{seq}/frames", "--track-recheck", "-2"], "--track-recheck must be"),
     ("empty folder", ["{tmp}"], "the folder holds no depth image or point cloud"),
     ("corrupt", ["{seq}/frames/f000.png", "{tmp}/bad.png"], "bad.png"),
 ])

@@ -229,6 +229,26 @@ def test_a_jump_in_cost_reinitialises(skel):
     np.testing.assert_allclose(np.asarray(frames.result.links.end[3]), np.asarray(want.links.end), atol=1e-4)
 
 
+def test_a_recheck_runs_the_global_search_and_keeps_the_cheaper(skel, motion):
+    """Every recheck_every frames a tracked frame also runs the global search; the frame keeps the
+    cheaper of that search's fit (the oracle: a Fitter with the frame's documented key) and the local
+    search's (the oracle: the same Tracker without rechecks, whose state is the same up to that frame)."""
+    clouds, _ = motion
+    key = jax.random.key(3)
+    plain, rechecked = Tracker(skel, CFG, key=key), Tracker(skel, dataclasses.replace(CFG, recheck_every=2), key=key)
+    modes, costs = [], []
+    for c in clouds[:4]:
+        local = plain.update(c)
+        got = rechecked.update(c)
+        modes.append(rechecked.mode)
+        costs.append((float(local.cost), float(got.cost)))
+    assert modes == ["global", "tracked", "global", "tracked"], modes
+    k2 = jax.random.split(jax.random.fold_in(key, 2))[0]
+    glob = plain.fitter.run(clouds[2], k2)
+    assert costs[2][1] == min(costs[2][0], float(glob.cost)), (costs[2], float(glob.cost))
+    assert costs[1][0] == costs[1][1]  # no recheck at frame 1: the same tracked frame
+
+
 @pytest.mark.slow  # a third compile of the whole search (about 25 s on 2 cores)
 def test_track_under_vmap_equals_each_sequence(skel, motion, tracked):
     clouds, _ = motion
@@ -248,6 +268,8 @@ def test_config_is_checked():
         TrackConfig(loss_ratio=0.5).validate()
     with pytest.raises(jp.ConfigError, match="generations"):
         TrackConfig(generations=0).validate()
+    with pytest.raises(jp.ConfigError, match="recheck_every"):
+        TrackConfig(recheck_every=-1).validate()
     with pytest.raises(jp.ConfigError, match="velocity"):
         TrackConfig(velocity=2.0).validate()
     with pytest.raises(jp.ConfigError, match="population"):
