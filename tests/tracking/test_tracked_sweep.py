@@ -35,10 +35,11 @@ def setting():
     return skel, truth, wrong, surface_cloud(skel, truth, 0), legs
 
 
-def _fit(skel, config, cloud, start, frame):
+def _fitter(skel, config, start):
+    """One compiled local fit from ``start``; the frame (whose limb is swept) is traced."""
     config = config.for_skeleton(skel)
     run = jax.jit(lambda c, k, t: local_fit(skel, config, c, start, start, k, t))
-    return run(cloud, jax.random.key(0), jnp.int32(frame))
+    return lambda cloud, frame: run(cloud, jax.random.key(0), jnp.int32(frame))
 
 
 def _leg_error(skel, pose, truth, legs):
@@ -53,11 +54,12 @@ def test_the_limb_in_turn_is_put_back_and_others_are_not_swept(setting):
     row = 0
     assert {n.split(".")[0] for n in names[sweep_masks(skel)[row]]} == set(LEG)  # row 0: this leg's angles
     config = dataclasses.replace(CFG, population=16, sweep_limbs=1, sweep_generations=8)
-    swept = _fit(skel, config, cloud, wrong, row)  # frame `row` sweeps row `row` (one limb per frame)
+    run = _fitter(skel, config, wrong)
+    swept = run(cloud, row)  # frame `row` sweeps row `row` (one limb per frame)
     assert _leg_error(skel, swept.pose, truth, legs) < 0.02  # back within 2 cm (the leg is about 0.2 m)
-    other = _fit(skel, config, cloud, wrong, row + 1)  # another limb's turn: this leg stays wrong
+    other = run(cloud, row + 1)  # another limb's turn: this leg stays wrong
     assert _leg_error(skel, other.pose, truth, legs) > 0.05
-    off = _fit(skel, dataclasses.replace(config, sweep_limbs=0), cloud, wrong, row)
+    off = _fitter(skel, dataclasses.replace(config, sweep_limbs=0), wrong)(cloud, row)
     assert _leg_error(skel, off.pose, truth, legs) > 0.05
     assert float(swept.cost) < float(off.cost)
 
@@ -93,7 +95,7 @@ def test_a_tracked_frame_runs_the_evaluations_it_counts(setting, monkeypatch):
     fit = dataclasses.replace(CFG.fit, final_refine_steps=5)
     config = dataclasses.replace(CFG, fit=fit, population=6, refine_top=3, refine_steps=4, sweep_limbs=3,
                                  sweep_generations=2, sweep_steps=3)
-    jax.block_until_ready(_fit(skel, config, cloud, wrong, 5))
+    jax.block_until_ready(_fitter(skel, config, wrong)(cloud, 5))
     jax.effects_barrier()
     evals, grads = tracked_counts(skel, config.for_skeleton(skel))
     assert sum(rows) == evals + grads + 1  # + the reported cost of the best
