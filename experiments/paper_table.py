@@ -24,7 +24,6 @@ import sharded
 from outputs import log, pyplot, rel, save_figure, write_csv, write_json, write_text
 
 from jaxpose.camera import project
-from jaxpose.search import FitConfig
 
 # The rows of the table: name -> FitConfig overrides ("objective": ObjectiveConfig overrides).
 # Everything else comes from FitConfig()'s defaults (and --population / --generations).
@@ -53,6 +52,9 @@ RUNS = os.path.join(C.RUNS_DIR, "paper")
 def parse_args(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", nargs="+", default=list(C.MODELS), choices=C.MODELS)
+    ap.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
+                    help="a FitConfig setting of every row (repeatable; objective.NAME for the cost's), "
+                         "as hard_poses.py --set")
     ap.add_argument("--algorithms", nargs="+", default=list(VARIANTS), choices=list(VARIANTS), metavar="ROW",
                     help=f"table rows to run (default: all of {', '.join(VARIANTS)})")
     ap.add_argument("--images", nargs="+", metavar="N|NAME",
@@ -88,7 +90,9 @@ def parse_args(argv=None):
 def variant_configs(args, skel) -> tuple[dict, dict]:
     """FitConfig of every selected row for one model's skeleton (generations resolved for
     it, budgets matched to BUDGET_REFERENCE) and the budget info."""
-    base = FitConfig()
+    from hard_poses import config_with, parse_settings
+
+    base = config_with(parse_settings(getattr(args, "settings", None)))
     over = {k: v for k, v in (("population", args.population), ("generations", args.generations)) if v is not None}
     base = C.make_config(base, over).for_skeleton(skel)
     ref = C.make_config(base, VARIANTS[BUDGET_REFERENCE])
