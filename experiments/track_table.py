@@ -91,6 +91,11 @@ def track_config(settings: dict) -> TrackConfig:
         raise SystemExit(f"--set: {e}") from None
 
 
+def _finite(x):
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
 def run_sequence(skel, seq, config: TrackConfig, seed: int, scratch: FitConfig | None, full_every: int):
     clouds = clouds_of(seq)
     tracker = Tracker(skel, config, seed=seed)
@@ -100,7 +105,8 @@ def run_sequence(skel, seq, config: TrackConfig, seed: int, scratch: FitConfig |
         v = seq.views[i]
         pcp, mp = score(skel, r.links, v) if (v is not None and tracker.mode != "lost") else (None, None)
         frames.append({"frame": i, "mode": tracker.mode, "seconds": float(r.wall_time), "pcp": pcp, "mpjpe_mm": mp,
-                       "absent": v is None, "cost": None if tracker.mode == "lost" else float(r.cost)})
+                       "absent": v is None, "cost": None if tracker.mode == "lost" else float(r.cost),
+                       "tracked_cost": _finite(tracker.last.tracked_cost)})  # the local search's, before any recovery
     # the global search from scratch at the tracker's budget, every frame with the subject
     same = []
     fitter = jp.Fitter(skel, scratch) if scratch is not None else None
