@@ -53,7 +53,7 @@ def register(sub) -> None:
     p.add_argument("--search-lengths", action="store_true",
                    help="robot files (.urdf, MJCF): also search every link length within +-30%%")
     add_max_capsules(p)
-    g = p.add_argument_group("the global search (first frame, recovery); as in 'jaxpose fit'")
+    g = p.add_argument_group("the global search (first frame, recovery, rechecks); as in 'jaxpose fit'")
     g.add_argument("--algorithm", default="ga", help="ga (default), hc, cma_es or another evosax strategy")
     g.add_argument("--population", type=int, default=FitConfig.population)
     g.add_argument("--generations", type=int, default=FitConfig.generations,
@@ -82,8 +82,9 @@ def register(sub) -> None:
     k.add_argument("--track-sweep", type=int, default=t.sweep_limbs,
                    help=f"limbs searched anew per tracked frame, in turn (0: off; default {t.sweep_limbs})")
     k.add_argument("--track-recheck", type=int, default=t.recheck_every, metavar="N",
-                   help="every N frames also run the global search and keep the cheaper fit (a fit wrong from "
-                        f"the start gets another chance; each costs a global fit; 0: never, default {t.recheck_every})")
+                   help="N frames after the global search last ran, run it again beside the local search and keep "
+                        "the cheaper fit (a fit wrong from the start gets another chance; each costs a global fit; "
+                        f"0: never, default {t.recheck_every})")
     k.add_argument("--min-points", type=int, default=t.min_points,
                    help=f"a frame with fewer points is lost: the subject is out of view (default {t.min_points})")
     k.add_argument("--loss-ratio", type=float, default=t.loss_ratio,

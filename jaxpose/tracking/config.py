@@ -18,7 +18,7 @@ class TrackConfig:
     """Tracking settings (hashable), each documented below its field."""
 
     fit: FitConfig = field(default_factory=FitConfig)
-    """The global search: frame 0, the first frame after a lost one, and recovery.
+    """The global search: frame 0, the first frame after a lost one, recovery and rechecks.
     Its objective (and traced weights) also score the tracked frames."""
     population: int = 32
     """Individuals per generation of the local search around the prediction."""
@@ -74,11 +74,11 @@ class TrackConfig:
     cost_memory: float = 0.8
     """Weight of the past in the recent cost (an exponential moving average)."""
     recheck_every: int = 0
-    """Every this many frames (frame ``t`` with ``t % recheck_every == 0``, ``t > 0``) a
-    tracked frame also runs the global search, and the cheaper result is kept: a fit
-    wrong from the start (which the loss test, comparing a frame with its predecessors,
-    cannot see) gets another chance.  Such a frame costs a global fit (0: never, the
-    default for live use; docs/tracking.md, "Rechecks")."""
+    """When this many frames have passed since the global search last ran (or since the
+    first frame), a tracked frame also runs the global search, and the cheaper result is
+    kept: a fit wrong from the start (which the loss test, comparing a frame with its
+    predecessors, cannot see) gets another chance.  Such a frame costs a global fit
+    (0: never, the default; docs/tracking.md, "Rechecks")."""
 
     def validate(self) -> "TrackConfig":
         """Raise :class:`ConfigError` naming the first impossible setting; return ``self``."""

@@ -7,8 +7,9 @@ the last frame was fitted, the motion model predicts this frame's pose and the
 local search (:func:`~jaxpose.tracking.local.local_fit`) fits it (*tracked*).  When
 there is no last pose, or the tracked cost exceeds ``loss_ratio`` times the recent
 cost, the global search (:func:`~jaxpose.search.fit`) fits the frame (*global*) and
-the better of the two results is kept.  Every ``recheck_every`` frames the global
-search runs beside the local one too (a recheck), the better result kept.
+the better of the two results is kept.  When ``recheck_every`` frames have passed since
+the global search last ran, it runs beside the local one too (a recheck), the better
+result kept.
 
 Random numbers: frame ``t`` uses ``jax.random.fold_in(key, t)``, split in two: the
 first key for the global search, the second for the local one; so a frame's global
@@ -49,6 +50,7 @@ class TrackState(NamedTuple):
     valid: jax.Array  # () bool: the last frame was fitted
     frame: jax.Array  # () int32: frames seen
     key: jax.Array
+    last_global: jax.Array  # () int32: the last frame the global search fitted (0 before any)
 
 
 class TrackFrame(NamedTuple):
@@ -67,7 +69,7 @@ def initial_state(skel: Skeleton, key: jax.Array, init: Pose | None = None) -> T
     zeros = jnp.zeros((n,), jnp.float32)
     pose = zeros if init is None else pose_to_vector(init).astype(jnp.float32)
     return TrackState(pose, zeros, jnp.asarray(jnp.inf, jnp.float32), jnp.asarray(init is not None),
-                      jnp.asarray(0, jnp.int32), key)
+                      jnp.asarray(0, jnp.int32), key, jnp.asarray(0, jnp.int32))
 
 
 def predict(skel: Skeleton, config: TrackConfig, state: TrackState) -> tuple[Pose, Pose]:
@@ -133,6 +135,7 @@ class _Pending(NamedTuple):
     present: jax.Array
     run_local: jax.Array
     run_global: jax.Array
+    recheck: jax.Array  # the global search runs as a recheck (TrackConfig.recheck_every)
     key: jax.Array  # the global search's key
 
 
@@ -147,23 +150,29 @@ def _local_part(skel: Skeleton, config: TrackConfig, state: TrackState, cloud: C
                                                                         state.frame),
                          lambda: _nan_result(skel, config))
     lost = ~(local.cost <= config.loss_ratio * state.reference)  # NaN (not run) counts as lost
-    recheck = (state.frame > 0) & (state.frame % config.recheck_every == 0) if config.recheck_every else False
-    return _Pending(local, points, present, run_local, present & (~state.valid | lost | recheck), k_global)
+    due = (state.frame - state.last_global >= config.recheck_every) if config.recheck_every else jnp.asarray(False)
+    recheck = run_local & due
+    return _Pending(local, points, present, run_local, present & (~state.valid | lost | recheck), recheck, k_global)
 
 
 def _finish_part(config: TrackConfig, state: TrackState, p: _Pending, glob: FitResult):
     """This frame's result (the better of the local and the global one, NaN when lost) and the next state."""
     none = jax.tree_util.tree_map(lambda x: jnp.full_like(x, jnp.nan) if x.dtype.kind == "f" else jnp.zeros_like(x),
                                   p.local)._replace(distance_evaluations=jnp.float32(0), wall_time=jnp.float32(0))
-    keep_local = p.run_local & (p.local.cost <= glob.cost) | ~p.run_global  # the global result unless worse
+    # the global result unless worse (a NaN global cost never replaces a fitted frame)
+    keep_local = p.run_local & ~(glob.cost < p.local.cost) | ~p.run_global
     result = _select(p.present, _select(keep_local, p.local, glob), none)
     mode = jnp.where(~p.present, LOST, jnp.where(p.run_global, GLOBAL, TRACKED)).astype(jnp.int32)
     new_pose = pose_to_vector(result.pose)
-    velocity = jnp.where(mode == TRACKED, change(state.pose, new_pose), 0.0)
+    # a recheck that kept the local fit continues the motion as a tracked frame does
+    continued = (mode == TRACKED) | (p.recheck & keep_local)
+    velocity = jnp.where(continued, change(state.pose, new_pose), 0.0)
     m = config.cost_memory
-    reference = jnp.where(mode == TRACKED, m * state.reference + (1 - m) * result.cost, result.cost)
+    reference = jnp.where(continued, m * state.reference + (1 - m) * result.cost, result.cost)
+    last_global = jnp.where(mode == GLOBAL, state.frame, state.last_global).astype(jnp.int32)
     next_state = TrackState(jnp.where(p.present, new_pose, state.pose), velocity,
-                            jnp.where(p.present, reference, jnp.inf), p.present, state.frame + 1, state.key)
+                            jnp.where(p.present, reference, jnp.inf), p.present, state.frame + 1, state.key,
+                            last_global)
     return next_state, TrackFrame(result, mode, p.points, p.local.cost)
 
 
@@ -188,8 +197,8 @@ def _wall0(r: FitResult) -> FitResult:
 def track(clouds: Cloud, skeleton: Skeleton, key: jax.Array, config: TrackConfig = TrackConfig(),
           init: Pose | None = None) -> TrackFrame:
     """Track ``skeleton`` through a stack of clouds (``points (T, N, 3)``, ``weights
-    (T, N)``, camera frame): frame 0 (and every frame after a lost one, and every
-    recovery) by the global search, the others from the last pose (``init``: a known
+    (T, N)``, camera frame): frame 0 (and every frame after a lost one, every
+    recovery and every recheck) by the global search, the others from the last pose (``init``: a known
     pose to track frame 0 from instead).  Returns every frame's :class:`TrackFrame`,
     stacked along T.
 
@@ -214,7 +223,7 @@ class Tracker:
     A tracked frame runs one compiled program (the local search and the loss test,
     :func:`track_step`'s first half) and a small one that keeps the result; both are
     compiled by the first update and reused by every frame of the same cloud size
-    (``max_points``).  The global search (frame 0, recovery) runs as a
+    (``max_points``).  The global search (frame 0, recovery, recheck) runs as a
     :class:`~jaxpose.search.Fitter`, compiled once too, with the keys :func:`track`
     uses: the same steps as :func:`track`'s, compiled apart (so equal to rounding)."""
 

@@ -17,6 +17,7 @@ import pytest
 
 import jaxpose as jp
 from jaxpose.objective import Cloud
+from jaxpose.search import Fitter
 from jaxpose.tracking import GLOBAL, LOST, MODES, TRACKED, TrackConfig, Tracker, track
 from oracles import brute_cost
 
@@ -229,24 +230,57 @@ def test_a_jump_in_cost_reinitialises(skel):
     np.testing.assert_allclose(np.asarray(frames.result.links.end[3]), np.asarray(want.links.end), atol=1e-4)
 
 
-def test_a_recheck_runs_the_global_search_and_keeps_the_cheaper(skel, motion):
-    """Every recheck_every frames a tracked frame also runs the global search; the frame keeps the
-    cheaper of that search's fit (the oracle: a Fitter with the frame's documented key) and the local
-    search's (the oracle: the same Tracker without rechecks, whose state is the same up to that frame)."""
-    clouds, _ = motion
+def _run_pair(skel, clouds, init=None):
+    """The same frames through a Tracker without rechecks and one with ``recheck_every=2``:
+    ``(plain results, plain modes, rechecked results, rechecked modes)``."""
     key = jax.random.key(3)
-    plain, rechecked = Tracker(skel, CFG, key=key), Tracker(skel, dataclasses.replace(CFG, recheck_every=2), key=key)
-    modes, costs = [], []
-    for c in clouds[:4]:
-        local = plain.update(c)
-        got = rechecked.update(c)
-        modes.append(rechecked.mode)
-        costs.append((float(local.cost), float(got.cost)))
+    plain = Tracker(skel, CFG, key=key, init=init)
+    rechecked = Tracker(skel, dataclasses.replace(CFG, recheck_every=2), key=key, init=init)
+    out = ([], [], [], [])
+    for c in clouds:
+        out[0].append(plain.update(c))
+        out[1].append(plain.mode)
+        out[2].append(rechecked.update(c))
+        out[3].append(rechecked.mode)
+    return out
+
+
+def _recheck_oracle(skel, cloud, t: int):
+    """The global search of frame ``t`` with its documented key, run as the Tracker runs it."""
+    return Fitter(skel, CFG.for_skeleton(skel).fit).run(cloud, jax.random.split(jax.random.fold_in(
+        jax.random.key(3), t))[0])
+
+
+def test_a_recheck_that_finds_a_cheaper_fit_takes_it(skel, motion):
+    """Tracked from a pose turned upside down (the local search cannot turn it over, and its cost
+    stays level, so the loss test does not fire): two frames after the start the recheck runs the
+    global search and its fit (the oracle: a Fitter with the frame's documented key) replaces the
+    wrong one; without rechecks every frame stays tracked and wrong."""
+    clouds, truth = motion
+    start = truth[0]._replace(root_rpy=truth[0].root_rpy + jnp.asarray([np.pi, 0.0, 0.0], jnp.float32))
+    plain, plain_modes, got, modes = _run_pair(skel, clouds[:4], init=start)
+    assert plain_modes == ["tracked"] * 4, plain_modes
+    assert modes == ["tracked", "tracked", "global", "tracked"], modes  # frame 0 (tracked from init) is no recheck
+    want = _recheck_oracle(skel, clouds[2], 2)
+    assert float(want.cost) < float(plain[2].cost)  # the case under test: the global fit is the cheaper
+    assert float(got[2].cost) == float(want.cost)
+    np.testing.assert_array_equal(np.asarray(got[2].links.end), np.asarray(want.links.end))
+    assert float(got[3].cost) < float(plain[3].cost)  # tracking goes on from the better fit
+    assert link_errors(skel, got[3], truth[3])[0] < link_errors(skel, plain[3], truth[3])[0]
+
+
+def test_a_recheck_that_finds_nothing_cheaper_changes_nothing(skel, motion):
+    """From frame 0's global fit the local search tracks well: the recheck's global fit (the
+    oracle) is dearer, the frame keeps the local fit, and the motion model and the recent cost
+    carry on as after a tracked frame, so the next frame equals that of a Tracker without rechecks."""
+    clouds, _ = motion
+    plain, plain_modes, got, modes = _run_pair(skel, clouds[:4])
+    assert plain_modes == ["global", "tracked", "tracked", "tracked"], plain_modes
     assert modes == ["global", "tracked", "global", "tracked"], modes
-    k2 = jax.random.split(jax.random.fold_in(key, 2))[0]
-    glob = plain.fitter.run(clouds[2], k2)
-    assert costs[2][1] == min(costs[2][0], float(glob.cost)), (costs[2], float(glob.cost))
-    assert costs[1][0] == costs[1][1]  # no recheck at frame 1: the same tracked frame
+    assert float(_recheck_oracle(skel, clouds[2], 2).cost) > float(plain[2].cost)  # the case under test
+    for t in (1, 2, 3):
+        assert float(got[t].cost) == float(plain[t].cost), t
+        np.testing.assert_array_equal(np.asarray(got[t].links.end), np.asarray(plain[t].links.end))
 
 
 @pytest.mark.slow  # a third compile of the whole search (about 25 s on 2 cores)
