@@ -638,15 +638,26 @@ def parse_settings(items) -> dict:
 
 
 def config_with(settings: dict):
-    """``FitConfig()`` with ``settings`` (``objective.<name>`` for the cost's settings)."""
+    """``FitConfig()`` with ``settings`` (``objective.<name>`` for the cost's settings); an unknown
+    name or an impossible value is a ``SystemExit`` naming it."""
     import dataclasses
 
+    from jaxpose.errors import ConfigError
+    from jaxpose.objective import ObjectiveConfig
     from jaxpose.search import FitConfig
 
+    fields = {f.name for f in dataclasses.fields(FitConfig)} - {"objective"}
+    costs = {f.name for f in dataclasses.fields(ObjectiveConfig)}
+    wrong = [k for k in settings if not (k in fields or (k.startswith("objective.") and k[10:] in costs))]
+    if wrong:
+        raise SystemExit(f"--set {wrong[0]}: not a FitConfig setting (nor objective.NAME)")
     top = {k: tuple(v) if isinstance(v, list) else v for k, v in settings.items() if "." not in k}
     obj = {k.split(".", 1)[1]: v for k, v in settings.items() if k.startswith("objective.")}
-    config = dataclasses.replace(FitConfig(), **top)
-    return dataclasses.replace(config, objective=dataclasses.replace(config.objective, **obj)).validate()
+    try:
+        config = dataclasses.replace(FitConfig(), **top)
+        return dataclasses.replace(config, objective=dataclasses.replace(config.objective, **obj)).validate()
+    except ConfigError as e:
+        raise SystemExit(f"--set: {e}") from None
 
 
 def main(argv=None) -> int:

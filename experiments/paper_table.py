@@ -83,6 +83,8 @@ def parse_args(argv=None):
             setattr(args, name, q[name])
     if args.seeds < 1:
         ap.error("--seeds must be >= 1")
+    if args.settings and not args.out:
+        ap.error("--set needs --out: the default folder holds the table of the default settings")
     args.out = args.out or (os.path.join(OUT, "quick") if args.quick else OUT)
     return args
 
@@ -92,7 +94,7 @@ def variant_configs(args, skel) -> tuple[dict, dict]:
     it, budgets matched to BUDGET_REFERENCE) and the budget info."""
     from hard_poses import config_with, parse_settings
 
-    base = config_with(parse_settings(getattr(args, "settings", None)))
+    base = config_with(parse_settings(args.settings))
     over = {k: v for k, v in (("population", args.population), ("generations", args.generations)) if v is not None}
     base = C.make_config(base, over).for_skeleton(skel)
     ref = C.make_config(base, VARIANTS[BUDGET_REFERENCE])

@@ -101,3 +101,13 @@ def test_summary_splits_search_and_objective_failures():
     assert s["split"]["objective"]["tags"] == {"occluded": 1}
     assert s["visible_links"] == 5 and s["hidden_links"] == 1 and s["hidden_pcp"] == 0.0
     assert "| s | 3 |" in HP.markdown({"s": s})
+
+
+def test_settings_reach_the_config_and_a_wrong_one_is_named():
+    cfg = HP.config_with(HP.parse_settings(["islands=4", "objective.sigma_factor=0.5", "halve_islands_at=[0.5]"]))
+    assert (cfg.islands, cfg.objective.sigma_factor, cfg.halve_islands_at) == (4, 0.5, (0.5,))
+    for item, words in (("fit.islands=4", "--set fit.islands: not a FitConfig setting"),
+                        ("objective.nothing=1", "--set objective.nothing: not a FitConfig setting"),
+                        ("islands=0", "--set: islands must be >= 1")):
+        with pytest.raises(SystemExit, match=words):
+            HP.config_with(HP.parse_settings([item]))
