@@ -7,6 +7,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from search_cases import GA_PLAIN, skeleton, spider_cloud
 
 from jaxpose.search import FitConfig, Fitter
@@ -93,6 +94,7 @@ def test_niche_leaders_match_a_brute_force_oracle():
         assert got[np.argmin(c)]
 
 
+@pytest.mark.slow  # niches are off by default (measured without gain): out of the suite's time
 def test_niche_halving_keeps_the_best_island_of_each_orientation():
     """Islands 0 and 1 face one way, 2 and 3 the opposite way (costs 1 < 2 < 3 < 4):
     plain halving keeps 0 and 1, niche halving keeps 0 and 2 and copies them into 1 and 3."""

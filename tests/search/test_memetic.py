@@ -72,6 +72,7 @@ def test_limb_hops_redraw_one_mask_each_within_bounds():
     assert len(which) == len(masks)  # 400 draws over 18 choices reach every one
 
 
+@pytest.mark.slow  # limb hops are off by default (measured without gain): out of the suite's time
 def test_memetic_hops_take_the_worst_rows_and_never_worsen_the_best():
     cfg = dataclasses.replace(GA, memetic_top=2, memetic_hops=3, final_refine_top=2, final_hops=2)
     assert cfg.memetic_rows == (2, 3) and cfg.final_rows == (2, 2)
