@@ -136,7 +136,7 @@ def _amplitude(text: str) -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", nargs="+", default=MODELS, help="MJCF or URDF files, or gymnasium:NAME.xml")
-    ap.add_argument("--frames", type=MV._at_least_one, default=60)
+    ap.add_argument("--frames", type=MV.at_least_one, default=60)
     ap.add_argument("--seed", type=int, default=2, help="the motions' and cameras' draw (default 2)")
     ap.add_argument("--spread", type=MV.spread_arg, default=0.3, help="the base pose's spread (as mujoco_views)")
     ap.add_argument("--amplitude", type=_amplitude, default=0.2, help="the sines' amplitude, of half each range")

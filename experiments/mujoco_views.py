@@ -369,7 +369,7 @@ def gl_problem() -> str | None:
     return None
 
 
-def _at_least_one(text: str) -> int:
+def at_least_one(text: str) -> int:
     n = int(text)
     if n < 1:
         raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
@@ -386,7 +386,7 @@ def main(argv=None) -> int:
     ap.add_argument("--spread", type=spread_arg, default=0.3,
                     help="joint spread, fraction of half the range, or 'uniform' over the whole range (default 0.3)")
     ap.add_argument("--generations", type=int, default=None, help="FitConfig.generations (default: automatic)")
-    ap.add_argument("--capsules", type=_at_least_one, default=None,
+    ap.add_argument("--capsules", type=at_least_one, default=None,
                     help="capsules per link at most (load_skeleton's max_capsules; default: its default)")
     ap.add_argument("--plots", type=int, default=1, help="overlay plots of the first N views per model (default 1)")
     ap.add_argument("--out", default=os.path.join(ROOT, "experiments", "results", "mujoco_views"),

@@ -27,11 +27,12 @@ import numpy as np
 
 from machine import machine_id, machine_info
 from hard_poses import parse_settings
-from outputs import log
+from outputs import clean, log
 
 import jaxpose as jp
 from jaxpose import sequences as S
 from jaxpose.camera import depth_to_cloud
+from jaxpose.errors import ConfigError
 from jaxpose.io.atomic import write_json
 from jaxpose.metrics import evaluate
 from jaxpose.search import FitConfig
@@ -76,7 +77,8 @@ def score(skel, links, view):
 
 def track_config(settings: dict) -> TrackConfig:
     """``TrackConfig()`` with ``settings`` (``fit.<name>`` for the global search's, ``fit.objective.<name>``
-    for its cost's, as ``hard_poses.config_with``); an unknown name is a ``SystemExit`` naming it."""
+    for its cost's, as ``hard_poses.config_with``); an unknown name or an impossible value is a
+    ``SystemExit`` naming it."""
     from hard_poses import config_with
 
     fields = {f.name for f in dataclasses.fields(TrackConfig)} - {"fit"}
@@ -87,13 +89,8 @@ def track_config(settings: dict) -> TrackConfig:
     try:
         fit = config_with({k.split(".", 1)[1]: v for k, v in settings.items() if k.startswith("fit.")})
         return dataclasses.replace(TrackConfig(), fit=fit, **top).validate()
-    except TypeError as e:  # an unknown FitConfig or ObjectiveConfig name
+    except ConfigError as e:  # an impossible value (config_with names the fit's own)
         raise SystemExit(f"--set: {e}") from None
-
-
-def _finite(x):
-    x = float(x)
-    return x if np.isfinite(x) else None
 
 
 def run_sequence(skel, seq, config: TrackConfig, seed: int, scratch: FitConfig | None, full_every: int):
@@ -106,7 +103,7 @@ def run_sequence(skel, seq, config: TrackConfig, seed: int, scratch: FitConfig |
         pcp, mp = score(skel, r.links, v) if (v is not None and tracker.mode != "lost") else (None, None)
         frames.append({"frame": i, "mode": tracker.mode, "seconds": float(r.wall_time), "pcp": pcp, "mpjpe_mm": mp,
                        "absent": v is None, "cost": None if tracker.mode == "lost" else float(r.cost),
-                       "tracked_cost": _finite(tracker.last.tracked_cost)})  # the local search's, before any recovery
+                       "tracked_cost": clean(float(tracker.last.tracked_cost))})  # the local fit's, pre-recovery
     # the global search from scratch at the tracker's budget, every frame with the subject
     same = []
     fitter = jp.Fitter(skel, scratch) if scratch is not None else None
