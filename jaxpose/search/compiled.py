@@ -27,7 +27,7 @@ from .config import FitConfig, FitParams
 from .hypotheses import hypotheses as distinct_hypotheses
 from .hypotheses import with_answers
 from .loop import (EpochSteps, cheapest, cheapest_index, evaluation_counts, portfolio_keys, search_epoch,
-                   search_generations, search_init, search_result)
+                   search_generations, search_init, search_result, turn_params)
 from .memetic import final_refine, memetic_apply, refine_top
 from .state import FitResult, SearchState
 
@@ -211,9 +211,12 @@ class Fitter:
         t0 = time.perf_counter()
         n, G = self.config.searches, self.config.generations
         share = None if time_budget is None else time_budget / n
+        keys = portfolio_keys(key, n)
         results, states, best, evals = [], [], float("inf"), 0
-        for i, (k, params) in enumerate(zip(portfolio_keys(key, n), self.config.search_params(self.params))):
-            report = None
+
+        def search(k, params):
+            nonlocal best, evals
+            report, i = None, len(results)
             if progress is not None:
                 def report(gen, cost, e, i=i, best=best, evals=evals):
                     progress(i * G + gen, min(best, cost), evals + e)
@@ -222,6 +225,14 @@ class Fitter:
             states.append(st)
             best = min(best, float(res.cost))
             evals += int(res.objective_evaluations) + int(res.gradient_evaluations)
+
+        for k, params in zip(keys, self.config.search_params(self.params)):
+            search(k, params)
+        if self.config.turns:  # about the portfolio's answer, as fit does
+            answer = results[int(cheapest_index(jnp.stack([r.cost for r in results])))]
+            for k, params in zip(keys[self.config.portfolio:],
+                                 turn_params(self.skeleton, self.config, self.params, answer.pose.root_rpy)):
+                search(k, params)
         res = results[0] if n == 1 else cheapest(results)
         if hypotheses > 1:
             chosen = int(cheapest_index(jnp.stack([r.cost for r in results])))

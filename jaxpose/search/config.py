@@ -57,6 +57,11 @@ class FitParams:
     sigma_factor: jnp.ndarray
     free_space_weight: jnp.ndarray
     collision_weight: jnp.ndarray
+    root_rpy: jnp.ndarray
+    """``(3,)``: with ``root_window > 0`` the root's roll, pitch and yaw are searched within
+    ``root_window`` radians of these (a turn search, :attr:`FitConfig.turns`); no config field sets them."""
+    root_window: jnp.ndarray
+    """Half-width (radians) of that window; 0: the root's orientation is free."""
 
 
 @dataclass(frozen=True)
@@ -151,6 +156,15 @@ class FitConfig:
     cheapest answer of all is the fit's.  Staging places natural poses better and
     misleads on folded and crossed limbs, where the search without it finds the pose
     (docs/search.md, "Portfolio"); ``()``: one search."""
+    turns: int = 0
+    """Turn searches (0-3): after the portfolio, its cheapest answer's root orientation
+    turned half a turn about each of the model's principal axes (the spin axis first,
+    :func:`~jaxpose.search.init.turned_roots`) and searched again from each, unstaged,
+    the root's orientation held within ``turn_window`` of it; the cheapest answer of
+    all is the fit's.  A whole body turned the wrong way round is a basin the other
+    searches rarely leave (docs/search.md, "Turn searches")."""
+    turn_window: float = 0.6
+    """Half-width (radians) of the window each turn search holds the root's roll, pitch and yaw in."""
     coarse_points: int = 0
     """Coarse-to-fine (GA only; 0: off): score on this many points only, until
     ``coarse_until`` of the generations."""
@@ -205,6 +219,10 @@ class FitConfig:
                 isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v <= 1.0
                 for v in self.staged_alternatives):
             raise ConfigError(f"staged_alternatives must hold fractions in [0, 1], got {self.staged_alternatives!r}")
+        require_integer("turns", self.turns, 0)
+        if self.turns > 3:
+            raise ConfigError(f"turns must be 0-3 (one per principal axis), got {self.turns}")
+        within("turn_window", 0.0, float(jnp.pi), lo_open=True)
         require_integer("coarse_points", self.coarse_points, 0)
         if self.coarse_points and self.algorithm != "ga":
             raise ConfigError(f"coarse_points works with the GA (algorithm 'ga') only, not {self.algorithm!r}")
@@ -228,9 +246,14 @@ class FitConfig:
         return self.algorithm == "ga" and self.memetic_top > 0 and self.memetic_steps > 0
 
     @property
-    def searches(self) -> int:
-        """Searches a fit runs: the search and its :attr:`staged_alternatives`."""
+    def portfolio(self) -> int:
+        """Searches of the portfolio: the search and its :attr:`staged_alternatives`."""
         return 1 + len(self.staged_alternatives)
+
+    @property
+    def searches(self) -> int:
+        """Searches a fit runs: the portfolio's, then the :attr:`turns`."""
+        return self.portfolio + self.turns
 
     def search_params(self, params: FitParams) -> list[FitParams]:
         """The traced settings of each search of the portfolio (``params``, then one per alternative)."""
@@ -273,15 +296,17 @@ class FitConfig:
         """The traced settings of this config."""
         obj = self.objective
         values = {n: getattr(self, n) for n in TRACED} | {n: getattr(obj, n) for n in TRACED_OBJECTIVE}
-        return FitParams(**{n: jnp.asarray(v, jnp.float32) for n, v in values.items()})
+        return FitParams(**{n: jnp.asarray(v, jnp.float32) for n, v in values.items()},
+                         root_rpy=jnp.zeros(3, jnp.float32), root_window=jnp.asarray(0.0, jnp.float32))
 
     def static(self) -> "FitConfig":
         """This config without its traced settings: what a compiled search depends on.
         Traced fields read ``None``; a zero weight stays 0 (its term is left out)."""
         obj = self.objective
         weights = {n: (None if getattr(obj, n) else 0.0) for n in ("free_space_weight", "collision_weight")}
-        return dataclasses.replace(self, **dict.fromkeys(TRACED), objective=dataclasses.replace(
-            obj, sigma_factor=None, **weights))
+        # the turn searches run the same programs (their window is traced): no turns, no window
+        return dataclasses.replace(self, **dict.fromkeys(TRACED), turns=0, turn_window=None,
+                                   objective=dataclasses.replace(obj, sigma_factor=None, **weights))
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

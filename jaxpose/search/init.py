@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..genome import Bounds, encode, genome_bounds, genome_layout
-from ..geometry import axis_angle_matrix, matrix_to_rpy
+from ..geometry import axis_angle_matrix, matrix_to_rpy, rpy_matrix
 from ..objective import Observation, cloud_centre, cloud_spread
 from ..rest_model import RestModel, principal_axes, rest_model
 from ..skeleton import Skeleton, rest_pose
@@ -44,14 +44,27 @@ def aligned_root(flip, skel: Skeleton, obs: Observation, scale, rest: RestModel 
     return centre - scale * R @ m_c, matrix_to_rpy(R)
 
 
+def turned_roots(skel: Skeleton, rpy: jax.Array, turns: int, rest: RestModel | None = None) -> jax.Array:
+    """``(turns, 3)``: the root orientation ``rpy`` turned half a turn about each of the
+    rest model's principal axes (in the model's frame), the spin axis first.  With the
+    orientation these are the four proper rotations that keep the principal axes: the
+    ambiguity :func:`aligned_root` draws from, about an answer instead of the cloud."""
+    rest = rest or rest_model(skel)
+    R = rpy_matrix(rpy)
+    order = (rest.spin_axis + jnp.arange(3)) % 3
+    return jnp.stack([matrix_to_rpy(R @ axis_angle_matrix(rest.axes[:, order[i]], jnp.pi)) for i in range(turns)])
+
+
 def initial_scale(skel: Skeleton, obs: Observation, rest: RestModel | None = None) -> jax.Array:
     """The scale at which the rest-pose model spreads like the cloud."""
     s0 = cloud_spread(obs.cloud) / (rest or rest_model(skel)).spread
     return jnp.clip(s0, skel.scale_lo, skel.scale_hi)
 
 
-def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig, rest: RestModel | None = None) -> Bounds:
-    """Gene ranges for this cloud: root within the cloud's extent, scale near :func:`initial_scale`."""
+def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig, rest: RestModel | None = None,
+                  params: FitParams | None = None) -> Bounds:
+    """Gene ranges for this cloud: root within the cloud's extent, scale near :func:`initial_scale`;
+    with ``params.root_window > 0`` the root's orientation within that window about ``params.root_rpy``."""
     centre = cloud_centre(obs.cloud)
     d = jnp.sqrt(jnp.sum((obs.cloud.points - centre) ** 2, -1))
     extent = jnp.maximum(jnp.max(jnp.where(obs.cloud.weights > 0, d, 0.0)), 1e-3)
@@ -62,6 +75,10 @@ def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig, rest: Res
         lo = jnp.maximum(skel.scale_lo, s0 / config.scale_window)
         hi = jnp.maximum(jnp.minimum(skel.scale_hi, s0 * config.scale_window), lo)
         bounds = Bounds(bounds.lo.at[i].set(lo), bounds.hi.at[i].set(hi))
+    if params is not None:
+        held = params.root_window > 0  # roll, pitch, yaw are genes 3-5 (genome.genome_layout)
+        bounds = Bounds(bounds.lo.at[3:6].set(jnp.where(held, params.root_rpy - params.root_window, bounds.lo[3:6])),
+                        bounds.hi.at[3:6].set(jnp.where(held, params.root_rpy + params.root_window, bounds.hi[3:6])))
     return bounds
 
 

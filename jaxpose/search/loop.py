@@ -29,7 +29,7 @@ from .config import FitConfig, FitParams
 from .cost import population_cost_fn
 from .ga import BranchSwapGA, subtree_masks
 from .genes import lock, tie_lengths
-from .init import initial_population, search_bounds
+from .init import initial_population, search_bounds, turned_roots
 from .islands import halve_islands, island_map, per_island, vmap_shared
 from .memetic import final_refine, keep_better, memetic_apply, refine_top
 from .state import SHARED, FitResult, SearchState
@@ -102,7 +102,7 @@ def search_init(cloud: Cloud, skel: Skeleton, key: jax.Array, config: FitConfig,
                                              free_space_weight=params.free_space_weight,
                                              collision_weight=params.collision_weight))
     rest = rest_model(skel)
-    shared = dict(obs=obs, bounds=search_bounds(skel, obs, config, rest), params=params)
+    shared = dict(obs=obs, bounds=search_bounds(skel, obs, config, rest, params), params=params)
     if config.islands == 1:
         return _init_island(skel, config, shared, rest, jax.random.split(key, 3))
     # every island's keys in one draw (each draw is a sizeable program to compile)
@@ -250,6 +250,15 @@ def portfolio_keys(key: jax.Array, searches: int) -> list:
     return [key] + [jax.random.fold_in(key, i) for i in range(1, searches)]
 
 
+def turn_params(skel: Skeleton, config: FitConfig, params: FitParams, root_rpy: jax.Array) -> list[FitParams]:
+    """The traced settings of the turn searches (:attr:`FitConfig.turns`) about an
+    answer whose root orientation is ``root_rpy``: unstaged, the root held within
+    ``turn_window`` of each of :func:`~jaxpose.search.init.turned_roots`."""
+    window = jnp.asarray(config.turn_window, jnp.float32)
+    return [params.replace(staged=jnp.asarray(0.0, jnp.float32), root_rpy=r.astype(jnp.float32), root_window=window)
+            for r in turned_roots(skel, root_rpy, config.turns)]
+
+
 def single_search(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig, params: FitParams) -> FitResult:
     """One search of a resolved, static ``config`` with the traced ``params``: start, epochs, finish."""
     st = search_init(cloud, skeleton, key, config, params)
@@ -277,15 +286,18 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
     ``params`` (default ``config.params()``) are the traced settings: pass them to
     sweep rates or weights under one compiled program (even vmapped over them).
     With ``config.staged_alternatives`` the searches of the portfolio run one after
-    another (``lax.map``: one traced search) and the cheapest answer is returned.
+    another (``lax.map``: one traced search), then ``config.turns`` turn searches
+    about the cheapest answer, and the cheapest answer of all is returned.
     """
     config = config.validate().for_skeleton(skeleton)
     params = config.params() if params is None else params
-    searches = config.searches
-    every = config.search_params(params)
-    config = config.static()
-    if searches == 1:
-        return single_search(cloud, skeleton, key, config, params)
-    stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *every)
-    keys = jnp.stack(portfolio_keys(key, searches))
-    return cheapest(jax.lax.map(lambda kp: single_search(cloud, skeleton, kp[0], config, kp[1]), (keys, stacked)))
+    every, keys, n = config.search_params(params), portfolio_keys(key, config.searches), config.portfolio
+    full, config = config, config.static()
+    stack = lambda trees: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *trees)  # noqa: E731
+    searches = lambda ks, ps: jax.lax.map(  # noqa: E731
+        lambda kp: single_search(cloud, skeleton, kp[0], config, kp[1]), (jnp.stack(ks), stack(ps)))
+    res = single_search(cloud, skeleton, key, config, params) if n == 1 else cheapest(searches(keys[:n], every))
+    if full.turns:  # from the portfolio's answer, as Fitter.run
+        turned = searches(keys[n:], turn_params(skeleton, full, params, res.pose.root_rpy))
+        res = cheapest(jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), res, turned))
+    return res

@@ -120,11 +120,15 @@ def test_params_hold_the_traced_settings_as_float32():
                                  objective=dataclasses.replace(OBJ, sigma_factor=0.4, collision_weight=0.7))
     params = config.params()
     assert isinstance(params, FitParams)
-    assert sorted(f.name for f in dataclasses.fields(params)) == sorted(TRACED + TRACED_OBJECTIVE)
+    # and the turn searches' window (FitParams' docstring: no config field sets it), off
+    assert sorted(f.name for f in dataclasses.fields(params)) == sorted(TRACED + TRACED_OBJECTIVE
+                                                                        + ("root_rpy", "root_window"))
     for name in TRACED:
         assert params_value(params, name) == np.float32(getattr(config, name)), name
     for name in TRACED_OBJECTIVE:
         assert params_value(params, name) == np.float32(getattr(config.objective, name)), name
+    assert params_value(params, "root_window") == 0
+    assert np.asarray(params.root_rpy).shape == (3,) and np.asarray(params.root_rpy).dtype == np.float32
 
 
 def params_value(params, name):
@@ -141,8 +145,10 @@ def test_static_config_drops_the_traced_settings_only():
     for name in TRACED_OBJECTIVE:
         assert getattr(static.objective, name) is None, name
     # everything else is kept
+    # the turn searches run the same programs with a traced window: read from the full config only
+    assert (static.turns, static.turn_window) == (0, None)
     for f in dataclasses.fields(config):
-        if f.name not in TRACED + ("objective",):
+        if f.name not in TRACED + ("objective", "turns", "turn_window"):
             assert getattr(static, f.name) == getattr(config, f.name), f.name
     for f in dataclasses.fields(config.objective):
         if f.name not in TRACED_OBJECTIVE:
@@ -152,6 +158,7 @@ def test_static_config_drops_the_traced_settings_only():
                                 objective=dataclasses.replace(config.objective, sigma_factor=1.0,
                                                               collision_weight=3.0))
     assert other.static() == static and hash(other.static()) == hash(static)
+    assert dataclasses.replace(config, turns=3, turn_window=0.3).static() == static
     # ... but not one with another shape or schedule
     assert dataclasses.replace(config, population=9).static() != static
 

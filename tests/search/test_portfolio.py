@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from search_cases import PORTFOLIO, skeleton, spider_cloud
 
-from jaxpose.search import Fitter, fit
+from jaxpose.search import Fitter
 from jaxpose.search.loop import cheapest, portfolio_keys
 
 
@@ -46,14 +46,6 @@ def test_staging_is_traced_and_changes_the_search(runs):
     assert _single(PORTFOLIO, 0.5).static() == _single(PORTFOLIO, 0.0).static()
     params = PORTFOLIO.search_params(PORTFOLIO.params())
     assert [float(p.staged) for p in params] == [0.5, 0.0]
-
-
-def test_the_traced_fit_runs_the_same_portfolio(runs):
-    """fit (one traced program, lax.map over the searches) against the Fitter's programs: equal to round-off."""
-    both, _, _ = runs
-    traced = jax.jit(fit, static_argnames="config")(spider_cloud(), skeleton(), jax.random.key(5), PORTFOLIO)
-    assert float(traced.cost) == pytest.approx(float(both.cost), rel=1e-3)
-    assert int(traced.objective_evaluations) == int(both.objective_evaluations)
 
 
 def test_cheapest_skips_nan_and_sums_the_counts():
