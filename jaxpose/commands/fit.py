@@ -63,6 +63,10 @@ def register(sub) -> None:
     p.add_argument("--one-search", action="store_true",
                    help="the staged search alone, not the portfolio of it and a search without staging "
                         "(half the time; folded and crossed limbs are placed less often)")
+    p.add_argument("--turns", type=int, default=FitConfig.turns, metavar="N",
+                   help="after the searches, turn the answer's body half a turn about N of its principal axes "
+                        "(0-3) and search again from each, the root's orientation held near it: for a body found "
+                        f"the wrong way round (one search's time each; default {FitConfig.turns})")
     p.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",
                    help="after each search, search every limb again with the rest of the body held, N "
                         f"generations each (0: off; default {FitConfig.limb_sweep})")
@@ -107,7 +111,7 @@ def register(sub) -> None:
 # The settings' names in the config classes' errors, as the command line's flags.
 FLAGS = {
     "population": "--population", "generations": "--generations", "islands": "--islands",
-    "coarse_points": "--coarse-points", "limb_sweep": "--limb-sweep",
+    "coarse_points": "--coarse-points", "limb_sweep": "--limb-sweep", "turns": "--turns",
     "pivot_sweep": "--pivot-sweep", "objective.sigma_factor": "--sigma-factor",
     "objective.free_space_weight": "--free-space-weight", "objective.collision_weight": "--collision-weight",
     "near": "--near", "far": "--far", "depth_scale": "--depth-scale", "cloud_scale": "--cloud-scale",
@@ -155,6 +159,7 @@ def config_from_args(args) -> FitConfig:
         tie_lengths=args.tie_lengths,
         limb_sweep=args.limb_sweep,
         pivot_sweep=args.pivot_sweep,
+        turns=args.turns,
         objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor,
                                   collision_weight=args.collision_weight),
     )

@@ -64,6 +64,8 @@ def register(sub) -> None:
     g.add_argument("--no-refine", action="store_true", help="no gradient refinement in the global search")
     g.add_argument("--one-search", action="store_true",
                    help="the global search: the staged search alone, not the portfolio (half the time)")
+    g.add_argument("--turns", type=int, default=FitConfig.turns, metavar="N",
+                   help=f"turn searches after the global search's portfolio (0-3; default {FitConfig.turns})")
     g.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",
                    help=f"the limb sweep: N generations a limb (0: off; default {FitConfig.limb_sweep})")
     g.add_argument("--pivot-sweep", type=int, default=FitConfig.pivot_sweep, metavar="N",

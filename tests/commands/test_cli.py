@@ -282,10 +282,20 @@ def test_fit_options_reach_the_config():
 
     args = build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", "--coarse-points", "256",
                                       "--islands", "3", "--population", "20", "--generations", "40",
-                                      "--tie-lengths", "--limb-sweep", "7", "--pivot-sweep", "5"])
+                                      "--tie-lengths", "--limb-sweep", "7", "--pivot-sweep", "5", "--turns", "2"])
     cfg = config_from_args(args)
-    assert (cfg.coarse_points, cfg.islands, cfg.population, cfg.generations, cfg.limb_sweep, cfg.pivot_sweep) == (
-        256, 3, 20, 40, 7, 5)
+    assert (cfg.coarse_points, cfg.islands, cfg.population, cfg.generations, cfg.limb_sweep, cfg.pivot_sweep,
+            cfg.turns) == (256, 3, 20, 40, 7, 5, 2)
     assert cfg.tie_lengths
     default = config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider"]))
     assert default == FitConfig()
+
+
+@pytest.mark.parametrize("value", ["4", "-1"])
+def test_impossible_turns_are_one_line_naming_the_flag(value, capsys):
+    from jaxpose.cli import build_parser
+    from jaxpose.commands.fit import config_from_args
+    from jaxpose.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^--turns must be"):
+        config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", "--turns", value]))
