@@ -26,6 +26,7 @@ here, or ``osmesa``); without one it says so and exits with status 0, so that
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -389,9 +390,18 @@ def main(argv=None) -> int:
     ap.add_argument("--capsules", type=at_least_one, default=None,
                     help="capsules per link at most (load_skeleton's max_capsules; default: its default)")
     ap.add_argument("--plots", type=int, default=1, help="overlay plots of the first N views per model (default 1)")
-    ap.add_argument("--out", default=os.path.join(ROOT, "experiments", "results", "mujoco_views"),
-                    help="folder for images, JSON and the Markdown table")
+    ap.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
+                    help="a FitConfig setting (repeatable; objective.NAME for the cost's), as hard_poses.py --set")
+    ap.add_argument("--out", default=None,
+                    help="folder for images, JSON and the Markdown table (default experiments/results/mujoco_views; "
+                         "needed with --set)")
     args = ap.parse_args(argv)
+    if args.settings and not args.out:
+        ap.error("--set needs --out: the default folder holds the table of the default settings")
+    args.out = args.out or os.path.join(ROOT, "experiments", "results", "mujoco_views")
+    from hard_poses import config_with, parse_settings
+
+    base = config_with(parse_settings(args.settings))  # one line for an unknown name or impossible value
     problem = gl_problem()
     if problem:
         print(f"mujoco_views: skipped: {problem}")
@@ -401,7 +411,7 @@ def main(argv=None) -> int:
     from outputs import write_text
 
     os.makedirs(args.out, exist_ok=True)
-    config = jp.FitConfig(generations=args.generations)
+    config = dataclasses.replace(base, generations=args.generations)
     records = []
     for path in args.models:
         print(f"{os.path.basename(path)}:", flush=True)

@@ -127,3 +127,12 @@ def test_summary_counts_whole_body_misses():
     rows = MV.summary([{**base, "pcp": p} for p in (1.0, 0.2, 0.0, 0.25, None)])
     assert rows[0]["whole_body_misses"] == 2 and rows[0]["views"] == 5
     assert "| 2 |" in MV.markdown(rows, "test machine")
+
+
+def test_set_names_a_bad_setting_in_one_line_and_needs_its_own_folder(tmp_path, capsys):
+    with pytest.raises(SystemExit, match="turns must be 0-3"):
+        MV.main(["--set", "turns=9", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit) as e:
+        MV.main(["--set", "turns=1"])
+    assert e.value.code == 2 and "--set needs --out" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # nothing written
