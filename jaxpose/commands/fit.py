@@ -62,7 +62,7 @@ def register(sub) -> None:
     p.add_argument("--no-refine", action="store_true", help="no gradient refinement (memetic or final)")
     p.add_argument("--one-search", action="store_true",
                    help="the staged search alone, not the portfolio of it and a search without staging "
-                        "(half the time; folded and crossed limbs are placed less often)")
+                        "(before the turn searches, if any; folded and crossed limbs are placed less often)")
     p.add_argument("--turns", type=int, default=FitConfig.turns, metavar="N",
                    help="after the searches, turn the answer's body half a turn about N of its principal axes "
                         "(0-3) and search again from each, the root's orientation held near it: for a body found "

@@ -63,7 +63,7 @@ def register(sub) -> None:
     g.add_argument("--tie-lengths", action="store_true", help="one length for alike links")
     g.add_argument("--no-refine", action="store_true", help="no gradient refinement in the global search")
     g.add_argument("--one-search", action="store_true",
-                   help="the global search: the staged search alone, not the portfolio (half the time)")
+                   help="the global search: the staged search alone, not the portfolio (the turns still run)")
     g.add_argument("--turns", type=int, default=FitConfig.turns, metavar="N",
                    help=f"turn searches after the global search's portfolio (0-3; default {FitConfig.turns})")
     g.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",

@@ -197,7 +197,8 @@ class Fitter:
         (with a portfolio, :attr:`FitConfig.staged_alternatives`, the generations of
         all its searches in a row, up to ``generations * searches``).
 
-        The searches of the portfolio run one after another with the same programs;
+        The searches of the portfolio run one after another with the same programs,
+        then the turn searches (:attr:`FitConfig.turns`) about the portfolio's answer;
         the cheapest answer is returned, with the evaluations of all of them.
         ``hypotheses > 1``: also the best distinct poses the islands of the chosen
         search found (:func:`~jaxpose.search.hypotheses.hypotheses`), in ``FitResult.hypotheses``.

@@ -40,7 +40,7 @@ TRACED_OBJECTIVE = ("sigma_factor", "free_space_weight", "collision_weight")
 
 @struct.dataclass
 class FitParams:
-    """The settings a compiled fit takes as traced numbers (``float32`` scalars).
+    """The settings a compiled fit takes as traced numbers (``float32`` scalars; ``root_rpy`` ``(3,)``).
 
     Made from a config by :meth:`FitConfig.params`; see :class:`FitConfig` for
     their meaning.  A weight of exactly 0 leaves its term out of the program, so it

@@ -85,13 +85,36 @@ def test_a_turn_search_from_a_body_turned_wrong_turns_it_right():
 
 @pytest.fixture(scope="module")
 def runs():
+    """The fit with turns (every search it ran recorded: key and settings), and the portfolio alone."""
     skel, cloud, key = skeleton(), spider_cloud(), jax.random.key(5)
-    return Fitter(skel, TURNS).run(cloud, key), Fitter(skel, dataclasses.replace(TURNS, turns=0)).run(cloud, key)
+    fitter, calls = Fitter(skel, TURNS), []
+    real = fitter._search
+
+    def spy(cloud, key, params, progress, budget):
+        calls.append((np.asarray(jax.random.key_data(key)), params))
+        return real(cloud, key, params, progress, budget)
+
+    fitter._search = spy
+    return fitter.run(cloud, key), Fitter(skel, dataclasses.replace(TURNS, turns=0)).run(cloud, key), calls
+
+
+def test_the_fit_runs_each_turn_search_with_its_documented_key_and_window(runs):
+    """Oracle: the keys of portfolio_keys after the portfolio's, and turned_roots of the portfolio's answer."""
+    _, portfolio, calls = runs
+    assert len(calls) == 4
+    keys = portfolio_keys(jax.random.key(5), 4)
+    for (k, _), want in zip(calls, keys):
+        np.testing.assert_array_equal(k, np.asarray(jax.random.key_data(want)))
+    centres = np.asarray(turned_roots(skeleton(), portfolio.pose.root_rpy, 2))
+    for (_, p), c in zip(calls[2:], centres):
+        np.testing.assert_array_equal(np.asarray(p.root_rpy), c.astype(np.float32))
+        assert float(p.root_window) == np.float32(TURNS.turn_window) and float(p.staged) == 0.0
+    assert all(float(p.root_window) == 0.0 for _, p in calls[:2])  # the portfolio's searches are free
 
 
 def test_the_turn_searches_start_from_the_portfolios_answer_and_the_cheapest_is_kept(runs):
     """Oracle: the portfolio alone, then each turn search run alone with its documented key and settings."""
-    with_turns, portfolio = runs
+    with_turns, portfolio, _ = runs
     skel, cfg = skeleton(), TURNS.for_skeleton(skeleton())
     keys = portfolio_keys(jax.random.key(5), cfg.searches)
     alone = [Fitter(skel, cfg)._search(spider_cloud(), k, p, None, None)[0]
@@ -107,7 +130,7 @@ def test_the_turn_searches_start_from_the_portfolios_answer_and_the_cheapest_is_
 def test_the_traced_fit_runs_the_same_portfolio_and_turns(runs):
     """fit (one traced program: lax.map over the portfolio's searches, then over the turns)
     against the Fitter's programs: equal to round-off."""
-    with_turns, _ = runs
+    with_turns, _, _ = runs
     traced = jax.jit(fit, static_argnames="config")(spider_cloud(), skeleton(), jax.random.key(5), TURNS)
     assert float(traced.cost) == pytest.approx(float(with_turns.cost), rel=1e-3)
     assert int(traced.objective_evaluations) == int(with_turns.objective_evaluations)
