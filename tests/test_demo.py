@@ -27,8 +27,8 @@ DATA = os.path.join(os.path.dirname(os.path.abspath(demo.__file__)), "data")
 HAS_MPL = importlib.util.find_spec("matplotlib") is not None
 
 # the same small fit as tests/commands/test_cli.py (one compilation per session for both files)
-TINY = ["--population", "32", "--generations", "10", "--islands", "1", "--no-refine", "--limb-sweep", "0",
-        "--pivot-sweep", "0", "--free-space-weight", "0", "--max-points", "256"]
+TINY = ["--population", "32", "--generations", "10", "--islands", "1", "--no-refine", "--turns", "0",
+        "--limb-sweep", "0", "--pivot-sweep", "0", "--free-space-weight", "0", "--max-points", "256"]
 
 # README, section "result.json"
 DOCUMENTED = {

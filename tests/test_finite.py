@@ -124,7 +124,7 @@ def test_corner_poses_are_finite(name, corner):
 
 # --------------------------------------------------------------------------- degenerate clouds
 
-TINY = jp.FitConfig(population=8, generations=3, islands=1, memetic_steps=0, final_refine_steps=2)
+TINY = jp.FitConfig(population=8, generations=3, islands=1, memetic_steps=0, final_refine_steps=2, turns=0)
 N, REAL = 64, 48  # every cloud has the same array size (one compilation) and 16 padding points
 
 

@@ -24,8 +24,8 @@ from jaxpose.cli import main
 from jaxpose.io.capsules import EXTRA_CAPSULE, MAX_CAPSULES
 
 FIXTURES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "fixtures")
-TINY = ["--population", "16", "--generations", "10", "--islands", "1", "--no-refine", "--limb-sweep", "0",
-        "--pivot-sweep", "0", "--max-points", "256", "--quiet"]
+TINY = ["--population", "16", "--generations", "10", "--islands", "1", "--no-refine", "--turns", "0",
+        "--limb-sweep", "0", "--pivot-sweep", "0", "--max-points", "256", "--quiet"]
 
 
 def urdf_tree(path):

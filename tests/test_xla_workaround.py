@@ -26,7 +26,7 @@ FIT = textwrap.dedent(
     cloud = jp.Cloud(jnp.asarray(pts, jnp.float32), jnp.ones(512, jnp.float32))
     # one epoch of 25 generations: a single compiled epoch with its memetic step (what crashed); one search, no sweeps
     cfg = jp.FitConfig(islands=8, population=16, generations=25, final_refine_steps=0, staged=0,
-                       staged_alternatives=(), limb_sweep=0, pivot_sweep=0)
+                       staged_alternatives=(), turns=0, limb_sweep=0, pivot_sweep=0)
     r = jp.fit_cloud(cloud, skel, 0, cfg)
     assert np.isfinite(float(r.cost)), r.cost
     print("FIT-OK", float(r.cost))

@@ -22,7 +22,8 @@ from jaxpose.io.depth_file import load_depth
 from jaxpose.io.skeleton_file import load_skeleton
 
 FIT = ["--skeleton", "spider", "--population", "32", "--generations", "10", "--islands", "1", "--quiet",
-       "--no-refine", "--limb-sweep", "0", "--pivot-sweep", "0", "--free-space-weight", "0", "--max-points", "256"]
+       "--no-refine", "--turns", "0", "--limb-sweep", "0", "--pivot-sweep", "0", "--free-space-weight", "0",
+       "--max-points", "256"]
 
 
 def _sha256(path) -> str:

@@ -27,7 +27,8 @@ LINE = re.compile(r"^\r\[(#*)(-*)\] gen (\d+)/(\d+)  best (-?[0-9]+\.[0-9]{5})  
 
 # the same small fit as tests/commands/test_cli.py (one compilation per session for both files)
 FIT = ["--skeleton", "spider", "--population", "32", "--generations", "10", "--islands", "1",
-       "--no-refine", "--limb-sweep", "0", "--pivot-sweep", "0", "--free-space-weight", "0", "--max-points", "256"]
+       "--no-refine", "--turns", "0", "--limb-sweep", "0", "--pivot-sweep", "0", "--free-space-weight", "0",
+       "--max-points", "256"]
 
 
 class TTY(io.StringIO):

@@ -16,7 +16,7 @@ from jaxpose.cli import main
 K = Intrinsics(145.0, 145.0, 79.5, 59.5, 160, 120)
 SETTINGS = ["--skeleton", "spider", "--intrinsics", "145,145,79.5,59.5", "--max-points", "128", "--islands", "1",
             "--population", "16", "--generations", "25", "--no-refine", "--track-population", "12",
-            "--track-generations", "3", "--track-refine-steps", "8", "--limb-sweep", "0",
+            "--track-generations", "3", "--track-refine-steps", "8", "--turns", "0", "--limb-sweep", "0",
             "--pivot-sweep", "0", "--quiet"]
 FRAMES, GAP = 7, (3, 2)  # frames 3 and 4 without the subject
 

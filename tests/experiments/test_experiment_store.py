@@ -46,7 +46,7 @@ def test_rerun_skips_stored_fits(tmp_path, fake_fits, monkeypatch):
     calls, _ = fake_fits
     monkeypatch.setattr(common, "depth_options_record", lambda ds: {})
     store, ds, config = common.RunStore(str(tmp_path)), _dataset(), FitConfig(
-        population=8, generations=2, limb_sweep=0, pivot_sweep=0)
+        population=8, generations=2, limb_sweep=0, pivot_sweep=0, turns=0)
     runner, recs = _run_all(store, ds, config)
     assert calls == ["img0", "img0", "img1", "img2"]  # one warm-up, then every image once
     assert (runner.ran, runner.skipped) == (3, 0)
@@ -59,7 +59,8 @@ def test_rerun_skips_stored_fits(tmp_path, fake_fits, monkeypatch):
     assert calls == [] and (runner2.ran, runner2.skipped) == (0, 3)
     assert [r["key"] for r in recs2] == [r["key"] for r in recs]
     # another config is another set of runs
-    _run_all(common.RunStore(str(tmp_path)), ds, FitConfig(population=8, generations=3, limb_sweep=0, pivot_sweep=0))
+    _run_all(common.RunStore(str(tmp_path)), ds,
+             FitConfig(population=8, generations=3, limb_sweep=0, pivot_sweep=0, turns=0))
     assert len(calls) == 4
 
 
@@ -67,7 +68,7 @@ def test_interrupted_run_keeps_finished_fits_and_resumes(tmp_path, fake_fits, mo
     calls, state = fake_fits
     monkeypatch.setattr(common, "depth_options_record", lambda ds: {})
     store, ds, config = common.RunStore(str(tmp_path)), _dataset(), FitConfig(
-        population=8, generations=2, limb_sweep=0, pivot_sweep=0)
+        population=8, generations=2, limb_sweep=0, pivot_sweep=0, turns=0)
     state["interrupt_at"] = 3  # warm-up, img0, then Ctrl-C during img1
     with pytest.raises(KeyboardInterrupt):
         _run_all(store, ds, config)

@@ -260,8 +260,9 @@ def test_fit_of_a_cloud_file_equals_the_fit_of_its_depth_image(tmp_path, capsys)
     pts, _ = depth_to_points(depth, KINECT_V1)
     fg = pts[foreground_mask(depth, 0.3, 8.0, background, 0.05).reshape(-1)].astype(np.float32)
     write_ply(tmp_path / "fg.ply", fg)
+    # the input path is under test, not the search: one short search
     small = ["--skeleton", "spider", "--population", "8", "--generations", "4", "--islands", "2", "--quiet",
-             "--one-search", "--limb-sweep", "0", "--pivot-sweep", "0"]  # the input path is under test, not the search
+             "--one-search", "--turns", "0", "--limb-sweep", "0", "--pivot-sweep", "0"]
     assert cli.main(["fit", str(DEMO_DEPTH), "--background", str(DEMO_BACKGROUND),
                      "--out", str(tmp_path / "d.json")] + small) == 0
     assert cli.main(["fit", str(tmp_path / "fg.ply"), "--out", str(tmp_path / "c.json"),

@@ -39,7 +39,7 @@ def config(refine: bool):
     # no limb sweep: on a search this short it does most of the work, and a GA from fresh draws turns the
     # round-off between programs compiled for 1 and N devices into different answers (docs/scaling.md)
     cfg = FitConfig(population=8, generations=4, epoch=2, memetic_top=2, memetic_steps=2, final_refine_top=2,
-                    final_refine_steps=2, islands=2, objective=OBJ, limb_sweep=0, pivot_sweep=0)
+                    final_refine_steps=2, islands=2, objective=OBJ, limb_sweep=0, pivot_sweep=0, turns=0)
     return cfg if refine else dataclasses.replace(cfg, memetic_steps=0, final_refine_steps=0)
 
 

@@ -21,7 +21,7 @@ from jaxpose.cli import main
 
 d = sys.argv[1]
 tiny = ["--skeleton", "spider", "--population", "8", "--generations", "4", "--islands", "2", "--no-refine",
-        "--limb-sweep", "0", "--pivot-sweep", "0", "--max-points", "128"]
+        "--turns", "0", "--limb-sweep", "0", "--pivot-sweep", "0", "--max-points", "128"]
 log = {}
 for s in (1, 2, 3):
     assert main(["render", "--skeleton", "spider", "--size", "160x120", "--seed", str(s), "--out", f"{d}/d{s}.png",

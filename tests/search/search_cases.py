@@ -49,7 +49,7 @@ OBJ = ObjectiveConfig(free_space_grid=16, block=64)
 # memetic_top above the population: clamped to it
 GA = FitConfig(
     algorithm="ga", population=16, generations=4, epoch=2, memetic_top=20, memetic_steps=2,
-    final_refine_top=20, final_refine_steps=3, islands=1, objective=OBJ, staged_alternatives=(), limb_sweep=0,
+    final_refine_top=20, final_refine_steps=3, islands=1, objective=OBJ, staged_alternatives=(), turns=0, limb_sweep=0,
     pivot_sweep=0,
 )
 # no refinement: the plain search budget, population * generations
@@ -58,7 +58,7 @@ ISLANDS = dataclasses.replace(GA, population=8, memetic_top=3, final_refine_step
 # a large step so that the first generation's neighbours are all worse than the start
 HC = FitConfig(
     algorithm="hc", population=16, generations=4, epoch=4, std_init=0.6, std_final=0.4, memetic_steps=0,
-    final_refine_top=3, final_refine_steps=1, islands=1, objective=OBJ, staged_alternatives=(), limb_sweep=0,
+    final_refine_top=3, final_refine_steps=1, islands=1, objective=OBJ, staged_alternatives=(), turns=0, limb_sweep=0,
     pivot_sweep=0,
 )
 CMA = dataclasses.replace(GA_PLAIN, algorithm="cma_es")

@@ -56,7 +56,7 @@ def config(**kw) -> FitConfig:
     # one search unless a test asks for the portfolio; no limb sweep (on a search this short it does most of
     # the work and turns round-off between programs into different answers: docs/search.md, "Limb sweep")
     base = dict(population=7, generations=GENERATIONS, epoch=EPOCH, memetic_steps=0, final_refine_steps=0,
-                staged_alternatives=(), limb_sweep=0, pivot_sweep=0)
+                staged_alternatives=(), turns=0, limb_sweep=0, pivot_sweep=0)
     base.update(kw)
     return FitConfig(**base)
 
@@ -176,7 +176,7 @@ def sweep_skeleton():
 # mixes two of them), no per-gene mutation (mutation_rate 1 is another search)
 SWEEP = FitConfig(population=12, generations=GENERATIONS, epoch=EPOCH, memetic_top=3, memetic_steps=2,
                   final_refine_top=3, final_refine_steps=2, islands=1, mutation_rate=0.0,
-                  objective=ObjectiveConfig(free_space_weight=3.0))
+                  turns=0, objective=ObjectiveConfig(free_space_weight=3.0))
 # every traced setting changed
 SWEEP_ALL = dataclasses.replace(
     SWEEP, crossover_rate=0.9, mutation_rate=0.5, branch_mutation_rate=0.8, branch_reset_rate=0.5,

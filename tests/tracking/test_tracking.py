@@ -29,7 +29,7 @@ T = 6  # frames
 # work, and a GA from fresh draws turns the round-off between differently compiled programs into different answers
 # (docs/search.md, "Limb sweep").
 FIT = jp.FitConfig(islands=1, population=16, generations=25, memetic_steps=0, final_refine_steps=0, limb_sweep=0,
-                   pivot_sweep=0)
+                   pivot_sweep=0, turns=0)
 CFG = TrackConfig(fit=FIT, population=12, generations=3, refine_steps=8)  # the tracked sweep: test_tracked_sweep
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 

@@ -31,8 +31,8 @@ pytestmark = pytest.mark.slow
 viser = pytest.importorskip("viser")
 app = pytest.importorskip("jaxpose.viewer.app")
 
-TINY = ["--population", "32", "--generations", "10", "--islands", "1", "--no-refine", "--free-space-weight", "0",
-        "--max-points", "256"]
+TINY = ["--population", "32", "--generations", "10", "--islands", "1", "--no-refine", "--turns", "0",
+        "--free-space-weight", "0", "--max-points", "256"]
 
 
 @pytest.fixture(scope="module")
