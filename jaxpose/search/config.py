@@ -161,8 +161,9 @@ class FitConfig:
     portfolio, its cheapest answer's root orientation turned half a turn about each of
     the model's principal axes (the spin axis first, :func:`~jaxpose.search.init.turned_roots`)
     and searched again from each, unstaged, the root's orientation held within
-    ``turn_window`` of it; the cheapest answer of all is the fit's.  A whole body turned the wrong way round is a basin the other
-    searches rarely leave (docs/search.md, "Turn searches")."""
+    ``turn_window`` of it; the cheapest answer of all is the fit's.  A whole body turned
+    the wrong way round is a basin the other searches rarely leave (docs/search.md,
+    "Turn searches")."""
     turn_window: float = 0.6
     """Half-width (radians) of the window each turn search holds the root's roll, pitch and yaw in."""
     coarse_points: int = 0
