@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .geometry import matrix_to_rpy, rpy_matrix
 from .skeleton import JOINT_DOF, Pose, Skeleton, rest_pose
 
 # Search range of the root orientation (roll, pitch, yaw), radians.
@@ -72,10 +73,35 @@ def genome_layout(skel: Skeleton) -> GenomeLayout:
 
 
 class Bounds(NamedTuple):
-    """Physical range of every gene: gene 0 maps to ``lo``, gene 1 to ``hi``."""
+    """Physical range of every gene: gene 0 maps to ``lo``, gene 1 to ``hi``.
+
+    Where ``turned`` (a traced boolean) is true, the root's roll, pitch and yaw genes are a
+    turn *relative to* ``turn`` (a rotation matrix, composed as ``rpy_matrix(genes) @ turn``):
+    a window about any orientation, of the same width in every direction, without the
+    roll-pitch-yaw box's seams (docs/search.md, "Turn searches")."""
 
     lo: jax.Array  # (D,)
     hi: jax.Array  # (D,)
+    turn: jax.Array | None = None  # (3, 3)
+    turned: jax.Array | None = None  # () bool
+
+
+def held_bounds(bounds: Bounds, rpy, window, held) -> Bounds:
+    """``bounds`` with the root's orientation held within ``window`` radians (about each axis)
+    of the orientation ``rpy (3,)`` where ``held`` (traced), unchanged elsewhere."""
+    w = jnp.where(held, window, 0.0)
+    return Bounds(bounds.lo.at[3:6].set(jnp.where(held, -w, bounds.lo[3:6])),
+                  bounds.hi.at[3:6].set(jnp.where(held, w, bounds.hi[3:6])),
+                  rpy_matrix(jnp.asarray(rpy, jnp.float32)), jnp.asarray(held))
+
+
+def root_rpy_values(bounds: Bounds, rpy, inverse: bool = False):
+    """The root's orientation ``(..., 3)`` from its genes' values (``inverse``: the values from the orientation)."""
+    if bounds.turn is None:
+        return rpy
+    T = bounds.turn.T if inverse else bounds.turn
+    safe = jnp.where(bounds.turned, rpy, 0.0)  # no NaN gradients through the branch not taken
+    return jnp.where(bounds.turned, matrix_to_rpy(rpy_matrix(safe) @ T), rpy)
 
 
 def genome_bounds(skel: Skeleton, centre, extent) -> Bounds:
@@ -123,12 +149,14 @@ def decode(skel: Skeleton, bounds: Bounds, genome: jax.Array) -> Pose:
     g = jnp.clip(genome, 0.0, 1.0)
     values = bounds.lo + g * (bounds.hi - bounds.lo)
     vec = _base_vector(skel).at[np.asarray(layout.target, np.int32)].set(values)
+    vec = vec.at[3:6].set(root_rpy_values(bounds, vec[3:6]))  # root genes are always genes 3-5 (genome_layout)
     return vector_to_pose(vec, skel.num_links)
 
 
 def encode(skel: Skeleton, bounds: Bounds, pose: Pose) -> jax.Array:
     """:class:`Pose` -> genome (values outside the ranges are clipped to ``[0, 1]``)."""
     layout = genome_layout(skel)
-    vec = pose_to_vector(pose)[np.asarray(layout.target, np.int32)]
+    vec = pose_to_vector(pose)
+    vec = vec.at[3:6].set(root_rpy_values(bounds, vec[3:6], inverse=True))[np.asarray(layout.target, np.int32)]
     span = jnp.where(bounds.hi > bounds.lo, bounds.hi - bounds.lo, 1.0)
     return jnp.clip((vec - bounds.lo) / span, 0.0, 1.0)

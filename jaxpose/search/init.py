@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..genome import Bounds, encode, genome_bounds, genome_layout
+from ..genome import Bounds, encode, genome_bounds, genome_layout, held_bounds, root_rpy_values
 from ..geometry import axis_angle_matrix, matrix_to_rpy, rpy_matrix
 from ..objective import Observation, cloud_centre, cloud_spread
 from ..rest_model import RestModel, principal_axes, rest_model
@@ -64,7 +64,8 @@ def initial_scale(skel: Skeleton, obs: Observation, rest: RestModel | None = Non
 def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig, rest: RestModel | None = None,
                   params: FitParams | None = None) -> Bounds:
     """Gene ranges for this cloud: root within the cloud's extent, scale near :func:`initial_scale`;
-    with ``params.root_window > 0`` the root's orientation within that window about ``params.root_rpy``."""
+    with ``params.root_window > 0`` the root's orientation within that window about ``params.root_rpy``
+    (a relative turn: :func:`~jaxpose.genome.held_bounds`)."""
     centre = cloud_centre(obs.cloud)
     d = jnp.sqrt(jnp.sum((obs.cloud.points - centre) ** 2, -1))
     extent = jnp.maximum(jnp.max(jnp.where(obs.cloud.weights > 0, d, 0.0)), 1e-3)
@@ -76,9 +77,7 @@ def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig, rest: Res
         hi = jnp.maximum(jnp.minimum(skel.scale_hi, s0 * config.scale_window), lo)
         bounds = Bounds(bounds.lo.at[i].set(lo), bounds.hi.at[i].set(hi))
     if params is not None:
-        held = params.root_window > 0  # roll, pitch, yaw are genes 3-5 (genome.genome_layout)
-        bounds = Bounds(bounds.lo.at[3:6].set(jnp.where(held, params.root_rpy - params.root_window, bounds.lo[3:6])),
-                        bounds.hi.at[3:6].set(jnp.where(held, params.root_rpy + params.root_window, bounds.hi[3:6])))
+        bounds = held_bounds(bounds, params.root_rpy, params.root_window, params.root_window > 0)
     return bounds
 
 
@@ -111,6 +110,7 @@ def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, co
     if n_pca > 0:
         flips, spin = u[:n_pca, D : D + 2] < 0.5, 2.0 * jnp.pi * u[:n_pca, D + 2]
         t, rpy = jax.vmap(lambda f, a: aligned_root(f, skel, obs, s0, rest, a))(flips, spin)
+        rpy = root_rpy_values(bounds, rpy, inverse=True)  # a turn search's genes are relative
         span = jnp.maximum(bounds.hi[:6] - bounds.lo[:6], 1e-9)
         root_g = (jnp.concatenate([t, rpy], 1) - bounds.lo[:6]) / span
         root_g = root_g + params.init_pca_std * z[:n_pca, D + 1 :]

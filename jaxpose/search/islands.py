@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from ..genome import genome_layout
+from ..genome import genome_layout, root_rpy_values
 from ..geometry import rpy_matrix
 from ..skeleton import Skeleton
 from .config import FitConfig
@@ -85,7 +85,7 @@ def halving_order(skel: Skeleton, config: FitConfig, st: SearchState) -> jax.Arr
     i = genome_layout(skel).names.index("root_roll")
     g = jnp.clip(state.best_solution[:, i : i + 3], 0.0, 1.0)
     lo, hi = st.bounds.lo[i : i + 3], st.bounds.hi[i : i + 3]
-    leader = niche_leaders(lo + g * (hi - lo), cost, config.halve_niche_deg)
+    leader = niche_leaders(root_rpy_values(st.bounds, lo + g * (hi - lo)), cost, config.halve_niche_deg)
     return jnp.lexsort((jnp.where(jnp.isnan(cost), jnp.inf, cost), ~leader))
 
 

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..genome import Bounds, decode, genome_layout
+from ..genome import Bounds, decode, genome_layout, root_rpy_values
 from ..geometry import matrix_to_rpy, rpy_matrix
 from ..kinematics import forward_kinematics
 from ..skeleton import Skeleton
@@ -94,7 +94,7 @@ def pivot_root(skel: Skeleton, bounds: Bounds, genomes, k, R_held, origin_held):
     turn = R_held[None] @ jnp.swapaxes(links.R_world_link[:, k], -1, -2)  # (P, 3, 3): world turn taking k home
     R_new = turn @ R_root
     t_new = origin_held[None] - jnp.einsum("pij,pj->pi", turn, links.origin[:, k] - poses.root_t)
-    root = jnp.concatenate([t_new, matrix_to_rpy(R_new)], -1)
+    root = jnp.concatenate([t_new, root_rpy_values(bounds, matrix_to_rpy(R_new), inverse=True)], -1)
     lo, hi = bounds.lo[:6], bounds.hi[:6]
     return genomes.at[:, :6].set(jnp.clip((root - lo) / jnp.maximum(hi - lo, 1e-9), 0.0, 1.0))
 

@@ -21,8 +21,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..genome import Bounds, decode, encode, genome_bounds
-from ..geometry import matrix_to_rpy, rpy_matrix
+from ..genome import Bounds, decode, encode, genome_bounds, held_bounds
 from ..kinematics import Links, collision_pairs, forward_kinematics
 from ..objective import Cloud, Observation, observe, population_cost
 from ..search.config import FitConfig
@@ -34,7 +33,6 @@ from ..search.sweep import hold, sweep_masks, sweep_rows
 from ..skeleton import Pose, Skeleton
 from .config import TrackConfig
 
-ROOT_ANGLES = slice(3, 6)  # the genome's root roll, pitch, yaw genes (genome.GenomeLayout)
 SCALE = 6
 
 
@@ -47,28 +45,16 @@ class LocalFit(NamedTuple):
 
 
 def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
-    """Gene ranges around the prediction ``pred`` (the root's angles: a relative turn)."""
+    """Gene ranges around the prediction ``pred`` (the root's angles: a turn relative to
+    its orientation, :func:`~jaxpose.genome.held_bounds`)."""
     b = genome_bounds(skel, pred.root_t, config.move * pred.scale)
-    lo = b.lo.at[ROOT_ANGLES].set(-config.turn)
-    hi = b.hi.at[ROOT_ANGLES].set(config.turn)
+    b = held_bounds(b, pred.root_rpy, config.turn, jnp.asarray(True))
     s_lo = jnp.maximum(skel.scale_lo, pred.scale / config.scale_window)
     s_hi = jnp.maximum(jnp.minimum(skel.scale_hi, pred.scale * config.scale_window), s_lo)
-    return Bounds(lo.at[SCALE].set(s_lo), hi.at[SCALE].set(s_hi))
+    return b._replace(lo=b.lo.at[SCALE].set(s_lo), hi=b.hi.at[SCALE].set(s_hi))
 
 
-def local_decode(skel: Skeleton, bounds: Bounds, R_pred, genome) -> Pose:
-    """A local genome -> :class:`Pose`: its root turn composed with the predicted orientation."""
-    pose = decode(skel, bounds, genome)
-    return pose._replace(root_rpy=matrix_to_rpy(rpy_matrix(pose.root_rpy) @ R_pred))
-
-
-def local_encode(skel: Skeleton, bounds: Bounds, pose: Pose, R_pred) -> jax.Array:
-    """:class:`Pose` -> local genome (the inverse of :func:`local_decode`, clipped to the bounds)."""
-    turn = matrix_to_rpy(rpy_matrix(pose.root_rpy) @ R_pred.T)
-    return encode(skel, bounds, pose._replace(root_rpy=turn))
-
-
-def local_cost_fn(skel: Skeleton, fit: FitConfig, obs: Observation, bounds: Bounds, R_pred):
+def local_cost_fn(skel: Skeleton, fit: FitConfig, obs: Observation, bounds: Bounds):
     """``cost(genomes (P, D)) -> (P,)``: the global search's objective on local genomes."""
     obj = fit.objective
     params = fit.params()
@@ -78,7 +64,7 @@ def local_cost_fn(skel: Skeleton, fit: FitConfig, obs: Observation, bounds: Boun
     def cost(genomes):
         if fit.tie_lengths:
             genomes = tie_lengths(skel, genomes)
-        poses = jax.vmap(partial(local_decode, skel, bounds, R_pred))(genomes)
+        poses = jax.vmap(partial(decode, skel, bounds))(genomes)
         links = jax.vmap(partial(forward_kinematics, skel))(poses)
         c = population_cost(obs, links.start, links.end, links.radius, obj, None, pairs, weights)
         return jnp.where(jnp.isfinite(c), c, jnp.inf)
@@ -94,10 +80,9 @@ def local_fit(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, las
     fit = config.fit
     obs = observe(cloud, fit.objective)
     bounds = local_bounds(skel, config, pred)
-    R_pred = rpy_matrix(pred.root_rpy)
-    objective = local_cost_fn(skel, fit, obs, bounds, R_pred)
-    g_pred = local_encode(skel, bounds, pred, R_pred)
-    g_last = local_encode(skel, bounds, last, R_pred)
+    objective = local_cost_fn(skel, fit, obs, bounds)
+    g_pred = encode(skel, bounds, pred)
+    g_last = encode(skel, bounds, last)
 
     # the objective plus the motion prior: a limb the camera cannot see stays put; robust
     # (logarithmic) so that a limb may still jump to where the points show it
@@ -132,7 +117,7 @@ def local_fit(skel: Skeleton, config: TrackConfig, cloud: Cloud, pred: Pose, las
     history = jnp.concatenate([jnp.min(f0)[None], hist]).at[-1].set(best_f)
     if fit.tie_lengths:
         best_g = tie_lengths(skel, best_g)
-    pose = local_decode(skel, bounds, R_pred, best_g)
+    pose = decode(skel, bounds, best_g)
     # the cost reported (and compared with the global search's) is the objective alone
     return LocalFit(pose, best_g, forward_kinematics(skel, pose), objective(best_g[None])[0], history)
 

@@ -114,7 +114,8 @@ def test_pivot_root_holds_the_pivots_subtree_where_it_was(link):
     skel = skeleton("humanoid")
     k = skel.index(link)
     D = jaxpose.genome_layout(skel).size
-    bounds = jaxpose.genome.Bounds(*(jnp.asarray(b) for b in jaxpose.genome_bounds(skel, jnp.zeros(3), 10.0)))
+    b = jaxpose.genome_bounds(skel, jnp.zeros(3), 10.0)
+    bounds = jaxpose.genome.Bounds(jnp.asarray(b.lo), jnp.asarray(b.hi))
     rng = np.random.default_rng(3)
     held = jnp.asarray(rng.uniform(0.2, 0.8, D), jnp.float32)
     held_pose = decode(skel, bounds, held)

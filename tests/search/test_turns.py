@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 from search_cases import ISLANDS, N_POINTS, PORTFOLIO, capsule_surface_cloud, skeleton, spider_cloud, true_pose
 
+import oracles
 from jaxpose import forward_kinematics, observe
+from jaxpose.genome import decode, encode
 from jaxpose.errors import ConfigError
-from jaxpose.geometry import rpy_matrix
+from jaxpose.geometry import matrix_to_rpy, rpy_matrix
 from jaxpose.rest_model import model_samples
 from jaxpose.search import FitConfig, Fitter, fit
 from jaxpose.search.init import search_bounds, turned_roots
@@ -51,13 +53,28 @@ def test_a_root_window_holds_the_orientation_genes_and_nothing_else():
     obs = observe(spider_cloud(), cfg.objective)
     free = search_bounds(skel, obs, cfg, params=cfg.params())
     assert np.array_equal(np.asarray(free.lo), np.asarray(search_bounds(skel, obs, cfg).lo))
-    centre = jnp.asarray([3.0, -1.0, 0.5], jnp.float32)
+    centre = jnp.asarray([2.8, 1.4, 0.5], jnp.float32)  # pitch 80 degrees: near the roll-pitch-yaw seam
     held = search_bounds(skel, obs, cfg, params=cfg.params().replace(root_rpy=centre, root_window=jnp.float32(0.2)))
-    np.testing.assert_allclose(np.asarray(held.lo[3:6]), np.asarray(centre) - 0.2, rtol=1e-6)
-    np.testing.assert_allclose(np.asarray(held.hi[3:6]), np.asarray(centre) + 0.2, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(held.lo[3:6]), -0.2, rtol=1e-6)  # a turn relative to the centre
+    np.testing.assert_allclose(np.asarray(held.hi[3:6]), 0.2, rtol=1e-6)
     for b, f in ((held.lo, free.lo), (held.hi, free.hi)):
         rest = np.r_[0:3, 6:len(f)]
         assert np.array_equal(np.asarray(b)[rest], np.asarray(f)[rest])
+    # every orientation gene value decodes to the centre turned by Rz Ry Rx of the value (NumPy oracle),
+    # in the camera's frame: a window as wide about every axis, wherever the centre lies
+    C = oracles.rpy(*np.asarray(centre, np.float64))
+    rng = np.random.default_rng(0)
+    genomes = rng.uniform(0.0, 1.0, (16, len(free.lo))).astype(np.float32)
+    genomes[0, 3:6] = 0.5
+    for g in genomes:
+        pose = decode(skel, held, jnp.asarray(g))
+        turn = -0.2 + 0.4 * g[3:6].astype(np.float64)
+        np.testing.assert_allclose(np.asarray(rpy_matrix(pose.root_rpy), np.float64), oracles.rpy(*turn) @ C,
+                                   atol=2e-6)
+        np.testing.assert_allclose(np.asarray(encode(skel, held, pose)), g, atol=2e-5)  # and back
+    free_pose = decode(skel, free, jnp.asarray(genomes[1]))  # unheld: the genes are the angles themselves
+    np.testing.assert_array_equal(np.asarray(free_pose.root_rpy),
+                                  np.asarray(free.lo[3:6] + genomes[1, 3:6] * (free.hi[3:6] - free.lo[3:6])))
 
 
 def test_a_turn_search_from_a_body_turned_wrong_turns_it_right():
@@ -120,7 +137,8 @@ def test_the_turn_searches_start_from_the_portfolios_answer_and_the_cheapest_is_
     alone = [Fitter(skel, cfg)._search(spider_cloud(), k, p, None, None)[0]
              for k, p in zip(keys[2:], turn_params(skel, cfg, cfg.params(), portfolio.pose.root_rpy))]
     for res, c in zip(alone, turned_roots(skel, portfolio.pose.root_rpy, 2)):  # each held in its window
-        assert np.all(np.abs(np.asarray(res.pose.root_rpy) - np.asarray(c)) <= cfg.turn_window + 1e-5)
+        turn = oracles.rpy(*np.asarray(res.pose.root_rpy, np.float64)) @ oracles.rpy(*np.asarray(c, np.float64)).T
+        assert np.all(np.abs(matrix_to_rpy(turn)) <= cfg.turn_window + 1e-4)
     want = cheapest([portfolio] + alone)
     np.testing.assert_array_equal(np.asarray(with_turns.genome), np.asarray(want.genome))
     assert float(with_turns.cost) == float(want.cost) <= float(portfolio.cost)
