@@ -114,7 +114,8 @@ def runs():
         return real(cloud, key, params, progress, budget)
 
     fitter._search = spy
-    return fitter.run(cloud, key), Fitter(skel, dataclasses.replace(TURNS, turns=0, turn_home=False)).run(cloud, key), calls
+    portfolio = Fitter(skel, dataclasses.replace(TURNS, turns=0, turn_home=False)).run(cloud, key)
+    return fitter.run(cloud, key), portfolio, calls
 
 
 def test_the_fit_runs_each_turn_search_with_its_documented_key_and_window(runs):
