@@ -402,10 +402,11 @@ def diagnose_image(ds, entry: dict, config, seed: int) -> dict:
     import common
 
     from jaxpose.io.truth import read_pose
-    from jaxpose.kinematics import collision_pairs, forward_kinematics
+    from jaxpose.kinematics import forward_kinematics
     from jaxpose.metrics import evaluate, pcp, pcp_scored
     from jaxpose.objective import collision_cost, data_cost, free_space_cost, observe, population_cost
     from jaxpose.search import fit_cloud
+    from jaxpose.search.cost import objective_pairs
     from jaxpose.search.init import search_bounds
 
     skel = ds.skeleton
@@ -420,7 +421,7 @@ def diagnose_image(ds, entry: dict, config, seed: int) -> dict:
 
     obj = config.objective
     obs = observe(img.cloud, obj)
-    pairs = collision_pairs(skel, obj.collision_margin) if obj.collision_weight != 0 else None
+    pairs = objective_pairs(skel, obj)
     stack = lambda a, b: jnp.asarray(np.stack([a, b]), jnp.float32)
     radii = stack(np.asarray(res.links.radius), np.asarray(tl.radius))
     costs = np.asarray(population_cost(obs, stack(ps, ts), stack(pe, te), radii, obj, pairs=pairs))

@@ -9,10 +9,17 @@ import jax.numpy as jnp
 
 from ..genome import decode
 from ..kinematics import collision_pairs, forward_kinematics
-from ..objective import population_cost
+from ..objective import CollisionPairs, ObjectiveConfig, population_cost
 from ..skeleton import Skeleton
 from .config import FitConfig
 from .state import SearchState
+
+
+def objective_pairs(skel: Skeleton, obj: ObjectiveConfig) -> CollisionPairs | None:
+    """The collision term's pairs under ``obj`` (``None`` when the term is off)."""
+    if obj.collision_weight == 0:
+        return None
+    return collision_pairs(skel, obj.collision_margin, obj.collision_free_neighbours)
 
 
 def population_cost_fn(skel: Skeleton, config: FitConfig, st: SearchState):
@@ -20,7 +27,7 @@ def population_cost_fn(skel: Skeleton, config: FitConfig, st: SearchState):
     traced weights, ``+inf`` where not finite (``blocks``: see :func:`~jaxpose.objective.data_cost`)."""
     obj, obs, bounds = config.objective, st.obs, st.bounds
     weights = (st.params.free_space_weight, st.params.collision_weight)
-    pairs = collision_pairs(skel, obj.collision_margin) if obj.collision_weight != 0 else None
+    pairs = objective_pairs(skel, obj)
 
     def cost(genomes, blocks=None):
         poses = jax.vmap(partial(decode, skel, bounds))(genomes)

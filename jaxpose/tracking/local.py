@@ -22,9 +22,10 @@ import jax
 import jax.numpy as jnp
 
 from ..genome import Bounds, decode, encode, genome_bounds, held_bounds
-from ..kinematics import Links, collision_pairs, forward_kinematics
+from ..kinematics import Links, forward_kinematics
 from ..objective import Cloud, Observation, observe, population_cost
 from ..search.config import FitConfig
+from ..search.cost import objective_pairs
 from ..search.genes import tie_lengths
 from ..search.loop import make_algorithm, start_algorithm
 from ..search.memetic import keep_better
@@ -59,7 +60,7 @@ def local_cost_fn(skel: Skeleton, fit: FitConfig, obs: Observation, bounds: Boun
     obj = fit.objective
     params = fit.params()
     weights = (params.free_space_weight, params.collision_weight)
-    pairs = collision_pairs(skel, obj.collision_margin) if obj.collision_weight != 0 else None
+    pairs = objective_pairs(skel, obj)
 
     def cost(genomes):
         if fit.tie_lengths:
