@@ -82,7 +82,7 @@ def _fit_program(config: FitConfig, mesh: Mesh):
         return local
 
     # the turn searches' count and window are read here, not by the compiled searches (FitConfig.static)
-    return _sharded(("fit", config.static(), config.turns, config.turn_window, config.turn_home), build, mesh)
+    return _sharded(("fit", config.static(), config.turns, config.turn_window), build, mesh)
 
 
 def _run(program, mesh: Mesh, replicated, batched: list):
@@ -286,7 +286,7 @@ def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitCo
     # the portfolio's searches one after another, then the turn searches, as Fitter.run runs them
     keys = portfolio_keys(key, config.searches)
     results = [program(cloud, host(skeleton), k, host(p)) for k, p in zip(keys, config.search_params(params))]
-    if config.turn_searches:
+    if config.turns:
         answer = cheapest(results)
         results += [program(cloud, host(skeleton), k, host(p)) for k, p in
                     zip(keys[config.portfolio:], turn_params(skeleton, config, params, answer.pose.root_rpy))]

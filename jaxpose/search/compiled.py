@@ -229,7 +229,7 @@ class Fitter:
 
         for k, params in zip(keys, self.config.search_params(self.params)):
             search(k, params)
-        if self.config.turn_searches:  # about the portfolio's answer, as fit does
+        if self.config.turns:  # about the portfolio's answer, as fit does
             answer = results[int(cheapest_index(jnp.stack([r.cost for r in results])))]
             for k, params in zip(keys[self.config.portfolio:],
                                  turn_params(self.skeleton, self.config, self.params, answer.pose.root_rpy)):

@@ -166,9 +166,6 @@ class FitConfig:
     "Turn searches")."""
     turn_window: float = 0.6
     """Half-width (radians) of the window each turn search holds the root's roll, pitch and yaw in."""
-    turn_home: bool = False
-    """One more turn search, after the :attr:`turns`: the answer's own orientation held
-    (no turn), the limbs and the position searched again around it."""
     coarse_points: int = 0
     """Coarse-to-fine (GA only; 0: off): score on this many points only, until
     ``coarse_until`` of the generations."""
@@ -230,8 +227,6 @@ class FitConfig:
         require_integer("coarse_points", self.coarse_points, 0)
         if self.coarse_points and self.algorithm != "ga":
             raise ConfigError(f"coarse_points works with the GA (algorithm 'ga') only, not {self.algorithm!r}")
-        if not isinstance(self.turn_home, bool):
-            raise ConfigError(f"turn_home must be true or false, got {self.turn_home!r}")
         if not isinstance(self.tie_lengths, bool):
             raise ConfigError(f"tie_lengths must be true or false, got {self.tie_lengths!r}")
         for name in ("memetic_top", "memetic_steps", "memetic_hops", "final_hops", "limb_sweep", "pivot_sweep",
@@ -258,13 +253,8 @@ class FitConfig:
 
     @property
     def searches(self) -> int:
-        """Searches a fit runs: the portfolio's, then the :attr:`turn_searches`."""
-        return self.portfolio + self.turn_searches
-
-    @property
-    def turn_searches(self) -> int:
-        """Searches about the portfolio's answer: the :attr:`turns` and :attr:`turn_home`."""
-        return self.turns + int(self.turn_home)
+        """Searches a fit runs: the portfolio's, then the :attr:`turns`."""
+        return self.portfolio + self.turns
 
     def search_params(self, params: FitParams) -> list[FitParams]:
         """The traced settings of each search of the portfolio (``params``, then one per alternative)."""
@@ -316,7 +306,7 @@ class FitConfig:
         obj = self.objective
         weights = {n: (None if getattr(obj, n) else 0.0) for n in ("free_space_weight", "collision_weight")}
         # the turn searches run the same programs (their window is traced): no turns, no window
-        return dataclasses.replace(self, **dict.fromkeys(TRACED), turns=0, turn_window=None, turn_home=False,
+        return dataclasses.replace(self, **dict.fromkeys(TRACED), turns=0, turn_window=None,
                                    objective=dataclasses.replace(obj, sigma_factor=None, **weights))
 
     def to_dict(self) -> dict:

@@ -256,8 +256,7 @@ def turn_params(skel: Skeleton, config: FitConfig, params: FitParams, root_rpy: 
     ``turn_window`` of each of :func:`~jaxpose.search.init.turned_roots`."""
     window = jnp.asarray(config.turn_window, jnp.float32)
     return [params.replace(staged=jnp.asarray(0.0, jnp.float32), root_rpy=r.astype(jnp.float32), root_window=window)
-            for r in (list(turned_roots(skel, root_rpy, config.turns)) if config.turns else [])
-            + [root_rpy] * config.turn_home]
+            for r in turned_roots(skel, root_rpy, config.turns)]
 
 
 def single_search(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig, params: FitParams) -> FitResult:
@@ -298,7 +297,7 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
     searches = lambda ks, ps: jax.lax.map(  # noqa: E731
         lambda kp: single_search(cloud, skeleton, kp[0], config, kp[1]), (jnp.stack(ks), stack(ps)))
     res = single_search(cloud, skeleton, key, config, params) if n == 1 else cheapest(searches(keys[:n], every))
-    if full.turn_searches:  # from the portfolio's answer, as Fitter.run
+    if full.turns:  # from the portfolio's answer, as Fitter.run
         turned = searches(keys[n:], turn_params(skeleton, full, params, res.pose.root_rpy))
         res = cheapest(jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), res, turned))
     return res

@@ -147,9 +147,9 @@ def test_static_config_drops_the_traced_settings_only():
         assert getattr(static.objective, name) is None, name
     # everything else is kept
     # the turn searches run the same programs with a traced window: read from the full config only
-    assert (static.turns, static.turn_window, static.turn_home) == (0, None, False)
+    assert (static.turns, static.turn_window) == (0, None)
     for f in dataclasses.fields(config):
-        if f.name not in TRACED + ("objective", "turns", "turn_window", "turn_home"):
+        if f.name not in TRACED + ("objective", "turns", "turn_window"):
             assert getattr(static, f.name) == getattr(config, f.name), f.name
     for f in dataclasses.fields(config.objective):
         if f.name not in TRACED_OBJECTIVE:
@@ -159,7 +159,7 @@ def test_static_config_drops_the_traced_settings_only():
                                 objective=dataclasses.replace(config.objective, sigma_factor=1.0,
                                                               collision_weight=3.0))
     assert other.static() == static and hash(other.static()) == hash(static)
-    assert dataclasses.replace(config, turns=3, turn_window=0.3, turn_home=True).static() == static
+    assert dataclasses.replace(config, turns=3, turn_window=0.3).static() == static
     # ... but not one with another shape or schedule
     assert dataclasses.replace(config, population=9).static() != static
 

@@ -1,6 +1,5 @@
-"""Turn searches (``FitConfig.turns``, ``turn_home``): after the portfolio, searches with the
-root's orientation held about its answer turned half a turn about each principal axis,
-and about the answer's own orientation."""
+"""Turn searches (``FitConfig.turns``): after the portfolio, searches with the root's
+orientation held about its answer turned half a turn about each principal axis."""
 
 from __future__ import annotations
 
@@ -22,8 +21,7 @@ from jaxpose.search import FitConfig, Fitter, fit
 from jaxpose.search.init import search_bounds, turned_roots
 from jaxpose.search.loop import cheapest, portfolio_keys, turn_params
 
-# the portfolio's programs serve its turn searches: one turned, one at the answer's own orientation
-TURNS = dataclasses.replace(PORTFOLIO, turns=1, turn_home=True)
+TURNS = dataclasses.replace(PORTFOLIO, turns=2)  # the portfolio's programs serve its turn searches
 
 
 def _principal_axes_numpy(skel):
@@ -114,8 +112,7 @@ def runs():
         return real(cloud, key, params, progress, budget)
 
     fitter._search = spy
-    portfolio = Fitter(skel, dataclasses.replace(TURNS, turns=0, turn_home=False)).run(cloud, key)
-    return fitter.run(cloud, key), portfolio, calls
+    return fitter.run(cloud, key), Fitter(skel, dataclasses.replace(TURNS, turns=0)).run(cloud, key), calls
 
 
 def test_the_fit_runs_each_turn_search_with_its_documented_key_and_window(runs):
@@ -125,7 +122,7 @@ def test_the_fit_runs_each_turn_search_with_its_documented_key_and_window(runs):
     keys = portfolio_keys(jax.random.key(5), 4)
     for (k, _), want in zip(calls, keys):
         np.testing.assert_array_equal(k, np.asarray(jax.random.key_data(want)))
-    centres = np.concatenate([turned_roots(skeleton(), portfolio.pose.root_rpy, 1), portfolio.pose.root_rpy[None]])
+    centres = np.asarray(turned_roots(skeleton(), portfolio.pose.root_rpy, 2))
     for (_, p), c in zip(calls[2:], centres):
         np.testing.assert_array_equal(np.asarray(p.root_rpy), c.astype(np.float32))
         assert float(p.root_window) == np.float32(TURNS.turn_window) and float(p.staged) == 0.0
@@ -139,8 +136,7 @@ def test_the_turn_searches_start_from_the_portfolios_answer_and_the_cheapest_is_
     keys = portfolio_keys(jax.random.key(5), cfg.searches)
     alone = [Fitter(skel, cfg)._search(spider_cloud(), k, p, None, None)[0]
              for k, p in zip(keys[2:], turn_params(skel, cfg, cfg.params(), portfolio.pose.root_rpy))]
-    centres = np.concatenate([turned_roots(skel, portfolio.pose.root_rpy, 1), portfolio.pose.root_rpy[None]])
-    for res, c in zip(alone, centres):  # each held in its window
+    for res, c in zip(alone, turned_roots(skel, portfolio.pose.root_rpy, 2)):  # each held in its window
         turn = oracles.rpy(*np.asarray(res.pose.root_rpy, np.float64)) @ oracles.rpy(*np.asarray(c, np.float64)).T
         assert np.all(np.abs(matrix_to_rpy(turn)) <= cfg.turn_window + 1e-4)
     want = cheapest([portfolio] + alone)
@@ -159,18 +155,7 @@ def test_the_traced_fit_runs_the_same_portfolio_and_turns(runs):
 
 
 @pytest.mark.parametrize("field,value", [("turns", 4), ("turns", -1), ("turns", 1.5), ("turn_window", 0.0),
-                                         ("turn_window", 4.0), ("turn_window", float("nan")),
-                                         ("turn_home", 1)])
+                                         ("turn_window", 4.0), ("turn_window", float("nan"))])
 def test_impossible_turn_settings_are_refused(field, value):
     with pytest.raises(ConfigError, match=field):
         dataclasses.replace(FitConfig(), **{field: value}).validate()
-
-
-def test_a_home_search_alone_holds_the_answers_own_orientation():
-    """turns=0 with turn_home: one search after the portfolio, held about the answer itself."""
-    cfg = dataclasses.replace(FitConfig(), turns=0, turn_home=True)
-    rpy = jnp.asarray([0.3, -1.2, 2.0], jnp.float32)
-    (p,) = turn_params(skeleton(), cfg, cfg.params(), rpy)
-    np.testing.assert_array_equal(np.asarray(p.root_rpy), np.asarray(rpy))
-    assert float(p.root_window) == np.float32(cfg.turn_window) and float(p.staged) == 0.0
-    assert cfg.searches == cfg.portfolio + 1 and cfg.turn_searches == 1
