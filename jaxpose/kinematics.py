@@ -124,17 +124,15 @@ def capsules(skel: Skeleton, pose: Pose) -> tuple[jax.Array, jax.Array, jax.Arra
     return links.start, links.end, links.radius
 
 
-def collision_pairs(skel: Skeleton, margin: float, free_neighbours: bool = False) -> CollisionPairs:
+def collision_pairs(skel: Skeleton, margin: float) -> CollisionPairs:
     """The capsule pairs of the collision term (:func:`jaxpose.objective.collision_cost`).
 
     Every pair of links but a link and its parent (they meet at the joint), each with
     ``rho = min(1, d_rest / (margin (r_i + r_j)))``, ``d_rest`` the distance of their
     axes in the rest pose (the skeleton's lengths, scale 1): pairs that overlap there
-    keep the clearance they have; with ``free_neighbours``, those within two joints of
-    each other (siblings, a link and its grandparent) are not charged (``rho = 0``).  The
-    extra capsules of a robot file's link count as that link
-    (:attr:`~jaxpose.skeleton.Skeleton.body`): no pair within one body, nor between a
-    body and its parent's.  Works on a traced skeleton (``rho`` is computed).
+    keep the clearance they have.  The extra capsules of a robot file's link count as
+    that link (:attr:`~jaxpose.skeleton.Skeleton.body`): no pair within one body, nor
+    between a body and its parent's.  Works on a traced skeleton (``rho`` is computed).
     """
     L = skel.num_links
     body = skel.bodies
@@ -146,8 +144,4 @@ def collision_pairs(skel: Skeleton, margin: float, free_neighbours: bool = False
     d = segment_distance(links.start[i], links.end[i], links.start[j], links.end[j])
     clearance = margin * (links.radius[i] + links.radius[j])
     rho = jnp.where(clearance > 0, jnp.minimum(1.0, d / jnp.where(clearance > 0, clearance, 1.0)), 0.0)
-    if free_neighbours:  # parts that meet at a joint (a head and its clavicles) are free (docs/objective.md)
-        near = np.array([par[a] == par[b] or (par[a] >= 0 and par[par[a]] == body[b])
-                         or (par[b] >= 0 and par[par[b]] == body[a]) for a, b in zip(i, j)], bool)
-        rho = jnp.where(near & (rho < 1.0), 0.0, rho)
     return CollisionPairs(i, j, rho)

@@ -209,16 +209,11 @@ def segment_segment_distance(p1, q1, p2, q2, iters: int = 60):
     return min(f(0.0), f(1.0), f((lo + hi) / 2))
 
 
-def collision_penalty(start, end, radius, parents, rest_start, rest_end, rest_radius, margin, sigma,
-                      free_neighbours=False):
+def collision_penalty(start, end, radius, parents, rest_start, rest_end, rest_radius, margin, sigma):
     """The collision term by double loop over link pairs (``jaxpose/objective/__init__.py`` docstring):
     every pair but a link and its parent; the clearance ``rho margin (r_i + r_j)`` with
     ``rho = min(1, d_rest / (margin (R_i + R_j)))`` from the rest pose's distance and
-    radii ``R`` (0 for two lines); ``free_neighbours``: siblings and a link and its
-    grandparent that overlap at rest are skipped."""
-    def grandparent(k):
-        return parents[parents[k]] if parents[k] >= 0 else -1
-
+    radii ``R`` (0 for two lines)."""
     total = 0.0
     L = len(start)
     for i in range(L):
@@ -230,9 +225,6 @@ def collision_penalty(start, end, radius, parents, rest_start, rest_end, rest_ra
                 continue
             d_rest = segment_segment_distance(rest_start[i], rest_end[i], rest_start[j], rest_end[j])
             rho = min(1.0, d_rest / c_rest)
-            near = parents[i] == parents[j] or grandparent(i) == j or grandparent(j) == i
-            if free_neighbours and near and rho < 1.0:
-                continue
             d = segment_segment_distance(start[i], end[i], start[j], end[j])
             total += np.log1p(max(0.0, rho * margin * (radius[i] + radius[j]) - d) / sigma)
     return float(total)

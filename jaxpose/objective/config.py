@@ -18,7 +18,6 @@ class ObjectiveConfig:
     free_space_grid: int = 40
     collision_weight: float = 0.1
     collision_margin: float = 0.8  # clearance of two capsules' axes, a fraction of r_i + r_j
-    collision_free_neighbours: bool = False  # pairs within two joints that overlap at rest: not charged
     block: int = 256  # points per streamed block in the kernel
 
     def validate(self) -> "ObjectiveConfig":
@@ -35,9 +34,6 @@ class ObjectiveConfig:
                 raise ConfigError(f"objective.{name} must be >= 0, got {getattr(self, name)}")
         if not 0 < number("collision_margin") <= 2:
             raise ConfigError(f"objective.collision_margin must lie in (0, 2], got {self.collision_margin}")
-        if not isinstance(self.collision_free_neighbours, bool):
-            raise ConfigError("objective.collision_free_neighbours must be true or false, "
-                              f"got {self.collision_free_neighbours!r}")
         for name, lo in (("free_space_samples", 1), ("free_space_grid", 2), ("block", 1)):
             require_integer(f"objective.{name}", getattr(self, name), lo)
         return self

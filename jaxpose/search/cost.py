@@ -19,7 +19,7 @@ def objective_pairs(skel: Skeleton, obj: ObjectiveConfig) -> CollisionPairs | No
     """The collision term's pairs under ``obj`` (``None`` when the term is off)."""
     if obj.collision_weight == 0:
         return None
-    return collision_pairs(skel, obj.collision_margin, obj.collision_free_neighbours)
+    return collision_pairs(skel, obj.collision_margin)
 
 
 def population_cost_fn(skel: Skeleton, config: FitConfig, st: SearchState):

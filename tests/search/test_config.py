@@ -56,7 +56,6 @@ def test_search_pieces_want_resolved_generations():
 @pytest.mark.parametrize("bad", [
     dict(population=1), dict(population=0), dict(population=8.0), dict(generations=0), dict(generations=-3),
     dict(algorithm="no_such_algorithm"), dict(islands=0), dict(tie_lengths="yes"), dict(epoch=0),
-    dict(objective=dataclasses.replace(GA.objective, collision_free_neighbours=1)),
 ])
 def test_config_errors(bad):
     config = dataclasses.replace(GA, **bad)
