@@ -30,7 +30,8 @@ class GenomeLayout:
     The genome is ``[root_t (3), root_rpy (3), scale (1), then for every link in
     topological order: its joint values (ball 3, hinge 1, slide 1, fixed 0) followed by its
     length if the link's length range is not a single value]``.  Every gene lies in
-    ``[0, 1]`` and maps linearly onto its parameter's range.  ``target`` gives each
+    ``[0, 1]`` and maps linearly onto its parameter's range (the root's angles: onto a
+    turn relative to the held orientation where :class:`Bounds` holds one).  ``target`` gives each
     gene's index in the flat parameter vector ``[root_t, root_rpy, scale,
     angles (L*3, row-major), lengths (L)]``.
     """

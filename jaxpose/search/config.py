@@ -58,8 +58,9 @@ class FitParams:
     free_space_weight: jnp.ndarray
     collision_weight: jnp.ndarray
     root_rpy: jnp.ndarray
-    """``(3,)``: with ``root_window > 0`` the root's roll, pitch and yaw are searched within
-    ``root_window`` radians of these (a turn search, :attr:`FitConfig.turns`); no config field sets them."""
+    """``(3,)``: with ``root_window > 0`` the root's orientation is searched as a turn of at most
+    ``root_window`` radians (about each axis) from this one (a turn search, :attr:`FitConfig.turns`,
+    :func:`~jaxpose.genome.held_bounds`); no config field sets them."""
     root_window: jnp.ndarray
     """Half-width (radians) of that window; 0: the root's orientation is free."""
 
@@ -165,7 +166,7 @@ class FitConfig:
     the wrong way round is a basin the other searches rarely leave (docs/search.md,
     "Turn searches")."""
     turn_window: float = 0.6
-    """Half-width (radians) of the window each turn search holds the root's roll, pitch and yaw in."""
+    """Half-width (radians, about each axis) of the turn from its held orientation that each turn search allows."""
     coarse_points: int = 0
     """Coarse-to-fine (GA only; 0: off): score on this many points only, until
     ``coarse_until`` of the generations."""

@@ -13,8 +13,8 @@ from search_cases import ISLANDS, N_POINTS, PORTFOLIO, capsule_surface_cloud, sk
 
 import oracles
 from jaxpose import forward_kinematics, observe
-from jaxpose.genome import decode, encode
 from jaxpose.errors import ConfigError
+from jaxpose.genome import decode, encode
 from jaxpose.geometry import matrix_to_rpy, rpy_matrix
 from jaxpose.rest_model import model_samples
 from jaxpose.search import FitConfig, Fitter, fit
