@@ -154,7 +154,9 @@ def test_without_viser_the_command_says_how_to_install_it(view_inputs, capsys, m
 def test_the_command_prints_its_address_serves_the_page_and_ends_on_ctrl_c(view_inputs):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     p = subprocess.Popen([sys.executable, "-m", "jaxpose.cli", "view", "result.json", "truth.json", "--port", "0"],
-                         cwd=view_inputs, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+                         cwd=view_inputs, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                         # a child inherits an ignored SIGINT (Python then never raises KeyboardInterrupt): reset it
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         line = p.stdout.readline()
         m = re.fullmatch(r"jaxpose view: result.json \(8 links\) at (http://localhost:\d+) \(Ctrl-C ends it\)\n",
