@@ -107,15 +107,20 @@ def _raw_links(name):
         return tomllib.load(f)["link"]
 
 
-@pytest.mark.parametrize("link", ["l_thigh", "upper_spine", "r_forearm"])
-def test_pivot_root_holds_the_pivots_subtree_where_it_was(link):
+@pytest.mark.parametrize("link,turned", [("l_thigh", False), ("upper_spine", False), ("r_forearm", False),
+                                         ("l_thigh", True), ("r_forearm", True)])
+def test_pivot_root_holds_the_pivots_subtree_where_it_was(link, turned):
     """After :func:`pivot_root` the pivot's subtree lies where it lay in the pose it was
-    held from, though every other joint angle changed (recursive NumPy FK as the oracle)."""
+    held from, though every other joint angle changed (recursive NumPy FK as the oracle);
+    ``turned``: a turn search's genome, whose root angles are a turn relative to a held
+    orientation (a window of half a turn, so that the pivot's turn is never clipped)."""
     skel = skeleton("humanoid")
     k = skel.index(link)
     D = jaxpose.genome_layout(skel).size
     b = jaxpose.genome_bounds(skel, jnp.zeros(3), 10.0)
     bounds = jaxpose.genome.Bounds(jnp.asarray(b.lo), jnp.asarray(b.hi))
+    if turned:
+        bounds = jaxpose.genome.held_bounds(bounds, jnp.asarray([0.3, 1.2, -2.0]), np.pi, jnp.asarray(True))
     rng = np.random.default_rng(3)
     held = jnp.asarray(rng.uniform(0.2, 0.8, D), jnp.float32)
     held_pose = decode(skel, bounds, held)
