@@ -23,9 +23,9 @@ import jax.numpy as jnp
 
 from ..genome import Bounds, decode, encode, genome_bounds, held_bounds
 from ..kinematics import Links, forward_kinematics
-from ..objective import Cloud, Observation, observe, population_cost
+from ..objective import Cloud, Observation, observe
 from ..search.config import FitConfig
-from ..search.cost import objective_pairs
+from ..search.cost import pose_cost
 from ..search.genes import tie_lengths
 from ..search.loop import make_algorithm, start_algorithm
 from ..search.memetic import keep_better
@@ -57,17 +57,13 @@ def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
 
 def local_cost_fn(skel: Skeleton, fit: FitConfig, obs: Observation, bounds: Bounds):
     """``cost(genomes (P, D)) -> (P,)``: the global search's objective on local genomes."""
-    obj = fit.objective
     params = fit.params()
-    weights = (params.free_space_weight, params.collision_weight)
-    pairs = objective_pairs(skel, obj)
 
     def cost(genomes):
         if fit.tie_lengths:
             genomes = tie_lengths(skel, genomes)
         poses = jax.vmap(partial(decode, skel, bounds))(genomes)
-        links = jax.vmap(partial(forward_kinematics, skel))(poses)
-        c = population_cost(obs, links.start, links.end, links.radius, obj, None, pairs, weights)
+        c = pose_cost(skel, obs, poses, fit.objective, params)
         return jnp.where(jnp.isfinite(c), c, jnp.inf)
 
     return cost
