@@ -12,6 +12,8 @@ import pytest
 from search_cases import GA, OBJ, capsule_surface_cloud, skeleton, spider_cloud, true_pose
 
 from jaxpose import forward_kinematics, genome_layout, observe
+from jaxpose.genome import decode
+from jaxpose.geometry import matrix_to_rpy, rpy_matrix
 from jaxpose.rest_model import ELONGATED, model_samples, rest_model
 from jaxpose.search import initial_population
 from jaxpose.search.init import aligned_root, search_bounds
@@ -87,3 +89,28 @@ def test_initial_population_lies_in_the_unit_box_and_takes_the_traced_spreads():
     diff = moved[:n_pca, :6] - still[:n_pca, :6]
     assert np.any(np.abs(diff) > 1e-3)
     np.testing.assert_array_equal(moved[n_pca:], pop[n_pca:])  # the aligned spread touches the aligned rows only
+
+
+def test_a_turn_searchs_aligned_starts_keep_their_orientation_inside_the_window():
+    """With the root held (a turn search: genes relative to ``root_rpy``), an aligned start whose
+    orientation lies inside the window decodes to that same orientation, and every start lies
+    within the window: the aligned orientations are converted to relative genes, not clipped
+    as absolute angles."""
+    skel, cloud = skeleton("humanoid"), spider_cloud()
+    obs = observe(cloud, OBJ)
+    config = dataclasses.replace(GA, init_pca_fraction=0.5, init_pca_std=0.0)
+    key = jax.random.key(7)
+    free_params = config.params()
+    free = search_bounds(skel, obs, config, params=free_params)
+    start = initial_population(key, skel, obs, free, config.static(), free_params)
+    aligned = rpy_matrix(decode(skel, free, start[0]).root_rpy)  # the first aligned start, free
+    window = 0.3
+    params = free_params.replace(root_rpy=matrix_to_rpy(aligned), root_window=jnp.float32(window))
+    held = search_bounds(skel, obs, config, params=params)
+    pop = initial_population(key, skel, obs, held, config.static(), params)
+    R = np.stack([np.asarray(rpy_matrix(decode(skel, held, g).root_rpy), np.float64) for g in pop])
+    np.testing.assert_allclose(R[0], np.asarray(aligned, np.float64), atol=1e-5)
+    A = np.asarray(aligned, np.float64)
+    angle = np.degrees(np.arccos(np.clip((np.einsum("pij,ij->p", R, A) - 1) / 2, -1, 1)))
+    assert angle.max() <= np.degrees(3 * window) + 1e-3  # a turn of at most `window` about each axis
+    assert angle.max() > 5  # the window is used, not collapsed
