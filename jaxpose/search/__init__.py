@@ -4,7 +4,8 @@ Modules, one idea each: ``config`` (settings, static and traced), ``init`` (boun
 and initial population), ``genes`` (staged search, tied lengths), ``islands``,
 ``coarse`` (coarse-to-fine scoring), ``memetic`` (refinement inside the search),
 ``loop`` (the pure search and :func:`fit`), ``compiled`` (:class:`Fitter`, the
-compiled programs and their cache); ``ga``, ``baselines``, ``refine``.
+compiled programs and their cache), ``cost`` (the cost of poses and genomes), ``sweep``
+(pivot and limb sweeps), ``hypotheses``; ``ga``, ``baselines``, ``refine``.
 """
 
 from .baselines import BoundedHillClimbing, evosax_strategy
