@@ -81,8 +81,8 @@ def _fit_program(config: FitConfig, mesh: Mesh):
             return jax.vmap(one)(Cloud(points, weights), jax.random.wrap_key_data(key_data))
         return local
 
-    # the turn searches' count and window are read here, not by the compiled searches (FitConfig.static)
-    return _sharded(("fit", config.static(), config.turns, config.turn_window), build, mesh)
+    # the turns' count and window and the restarts are read here, not by the compiled searches (FitConfig.static)
+    return _sharded(("fit", config.static(), config.turns, config.turn_window, config.restarts), build, mesh)
 
 
 def _run(program, mesh: Mesh, replicated, batched: list):
@@ -278,18 +278,13 @@ def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitCo
     if len(mesh.axis_names) != 1 or config.islands % mesh.devices.size:
         raise ConfigError(f"fit_islands: {config.islands} islands do not split over a one-axis mesh of "
                           f"{mesh.devices.size} devices (the islands must be a multiple of the devices)")
-    from .search.loop import cheapest, portfolio_keys, turn_params
+    from .search.loop import cheapest, run_searches
 
     cloud = Cloud(np.asarray(cloud.points, np.float32), np.asarray(cloud.weights, np.float32))
     host = lambda tree: jax.tree_util.tree_map(np.asarray, tree)  # noqa: E731
     program = _island_program(config, mesh)
-    # the portfolio's searches one after another, then the turn searches, as Fitter.run runs them
-    keys = portfolio_keys(key, config.searches)
-    results = [program(cloud, host(skeleton), k, host(p)) for k, p in zip(keys, config.search_params(params))]
-    if config.turns:
-        answer = cheapest(results)
-        results += [program(cloud, host(skeleton), k, host(p)) for k, p in
-                    zip(keys[config.portfolio:], turn_params(skeleton, config, params, answer.pose.root_rpy))]
+    # the searches one after another, as Fitter.run runs them
+    results = run_searches(skeleton, config, params, key, lambda k, p: program(cloud, host(skeleton), k, host(p)))
     return results[0] if len(results) == 1 else cheapest(results)
 
 

@@ -67,6 +67,10 @@ def register(sub) -> None:
                    help="after the searches, turn the answer's body half a turn about N of its principal axes "
                         "(0-3) and search again from each, the root's orientation held near it: for a body found "
                         f"the wrong way round (one search's time each; default {FitConfig.turns})")
+    p.add_argument("--restarts", type=int, default=FitConfig.restarts, metavar="K",
+                   help="run the whole fit (its searches and turns) K times with keys of their own and keep the "
+                        "cheapest answer: more limbs of hard poses placed, at K times the time "
+                        f"(default {FitConfig.restarts})")
     p.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",
                    help="after each search, search every limb again with the rest of the body held, N "
                         f"generations each (0: off; default {FitConfig.limb_sweep})")
@@ -112,6 +116,7 @@ def register(sub) -> None:
 FLAGS = {
     "population": "--population", "generations": "--generations", "islands": "--islands",
     "coarse_points": "--coarse-points", "limb_sweep": "--limb-sweep", "turns": "--turns",
+    "restarts": "--restarts",
     "pivot_sweep": "--pivot-sweep", "objective.sigma_factor": "--sigma-factor",
     "objective.free_space_weight": "--free-space-weight", "objective.collision_weight": "--collision-weight",
     "near": "--near", "far": "--far", "depth_scale": "--depth-scale", "cloud_scale": "--cloud-scale",
@@ -160,6 +165,7 @@ def config_from_args(args) -> FitConfig:
         limb_sweep=args.limb_sweep,
         pivot_sweep=args.pivot_sweep,
         turns=args.turns,
+        restarts=args.restarts,
         objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor,
                                   collision_weight=args.collision_weight),
     )

@@ -66,6 +66,8 @@ def register(sub) -> None:
                    help="the global search: the staged search alone, not the portfolio (the turns still run)")
     g.add_argument("--turns", type=int, default=FitConfig.turns, metavar="N",
                    help=f"turn searches after the global search's portfolio (0-3; default {FitConfig.turns})")
+    g.add_argument("--restarts", type=int, default=FitConfig.restarts, metavar="K",
+                   help=f"the global search run K times, the cheapest answer kept (default {FitConfig.restarts})")
     g.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",
                    help=f"the limb sweep: N generations a limb (0: off; default {FitConfig.limb_sweep})")
     g.add_argument("--pivot-sweep", type=int, default=FitConfig.pivot_sweep, metavar="N",

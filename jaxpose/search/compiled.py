@@ -26,8 +26,8 @@ from .coarse import coarse_switch, rescore_all
 from .config import FitConfig, FitParams
 from .hypotheses import hypotheses as distinct_hypotheses
 from .hypotheses import with_answers
-from .loop import (EpochSteps, cheapest, cheapest_index, evaluation_counts, portfolio_keys, search_epoch,
-                   search_generations, search_init, search_result, turn_params)
+from .loop import (EpochSteps, cheapest, cheapest_index, evaluation_counts, run_searches, search_epoch,
+                   search_generations, search_init, search_result)
 from .memetic import final_refine, memetic_apply, refine_top
 from .state import FitResult, SearchState
 
@@ -198,7 +198,8 @@ class Fitter:
         all its searches in a row, up to ``generations * searches``).
 
         The searches of the portfolio run one after another with the same programs,
-        then the turn searches (:attr:`FitConfig.turns`) about the portfolio's answer;
+        then the turn searches (:attr:`FitConfig.turns`) about the portfolio's answer,
+        all of it :attr:`FitConfig.restarts` times (:func:`~jaxpose.search.loop.run_searches`);
         the cheapest answer is returned, with the evaluations of all of them.
         ``hypotheses > 1``: also the best distinct poses the islands of the chosen
         search found (:func:`~jaxpose.search.hypotheses.hypotheses`), in ``FitResult.hypotheses``.
@@ -212,7 +213,6 @@ class Fitter:
         t0 = time.perf_counter()
         n, G = self.config.searches, self.config.generations
         share = None if time_budget is None else time_budget / n
-        keys = portfolio_keys(key, n)
         results, states, best, evals = [], [], float("inf"), 0
 
         def search(k, params):
@@ -226,14 +226,9 @@ class Fitter:
             states.append(st)
             best = min(best, float(res.cost))
             evals += int(res.objective_evaluations) + int(res.gradient_evaluations)
+            return res
 
-        for k, params in zip(keys, self.config.search_params(self.params)):
-            search(k, params)
-        if self.config.turns:  # about the portfolio's answer, as fit does
-            answer = results[int(cheapest_index(jnp.stack([r.cost for r in results])))]
-            for k, params in zip(keys[self.config.portfolio:],
-                                 turn_params(self.skeleton, self.config, self.params, answer.pose.root_rpy)):
-                search(k, params)
+        run_searches(self.skeleton, self.config, self.params, key, search)
         res = results[0] if n == 1 else cheapest(results)
         if hypotheses > 1:
             chosen = int(cheapest_index(jnp.stack([r.cost for r in results])))

@@ -165,6 +165,10 @@ class FitConfig:
     ``turn_window`` of it; the cheapest answer of all is the fit's.  A whole body turned
     the wrong way round is a basin the other searches rarely leave (docs/search.md,
     "Turn searches")."""
+    restarts: int = 1
+    """Restarts: the whole fit (the portfolio, then its turn searches) run this many times, each
+    time with keys of its own, the cheapest answer of all kept.  More independent search places
+    more limbs of hard poses, at that many times the time (docs/search.md, "Restarts")."""
     turn_window: float = 0.6
     """Half-width (radians, about each axis) of the turn from its held orientation that each turn search allows."""
     coarse_points: int = 0
@@ -222,6 +226,7 @@ class FitConfig:
                 for v in self.staged_alternatives):
             raise ConfigError(f"staged_alternatives must hold fractions in [0, 1], got {self.staged_alternatives!r}")
         require_integer("turns", self.turns, 0)
+        require_integer("restarts", self.restarts, 1)
         if self.turns > 3:
             raise ConfigError(f"turns must be 0-3 (one per principal axis), got {self.turns}")
         within("turn_window", 0.0, float(jnp.pi), lo_open=True)
@@ -253,9 +258,14 @@ class FitConfig:
         return 1 + len(self.staged_alternatives)
 
     @property
-    def searches(self) -> int:
-        """Searches a fit runs: the portfolio's, then the :attr:`turns`."""
+    def round_searches(self) -> int:
+        """Searches of one round (one restart): the portfolio's, then the :attr:`turns`."""
         return self.portfolio + self.turns
+
+    @property
+    def searches(self) -> int:
+        """Searches a fit runs: one round's, :attr:`restarts` times."""
+        return self.round_searches * self.restarts
 
     def search_params(self, params: FitParams) -> list[FitParams]:
         """The traced settings of each search of the portfolio (``params``, then one per alternative)."""
@@ -306,8 +316,8 @@ class FitConfig:
         Traced fields read ``None``; a zero weight stays 0 (its term is left out)."""
         obj = self.objective
         weights = {n: (None if getattr(obj, n) else 0.0) for n in ("free_space_weight", "collision_weight")}
-        # the turn searches run the same programs (their window is traced): no turns, no window
-        return dataclasses.replace(self, **dict.fromkeys(TRACED), turns=0, turn_window=None,
+        # the turn searches and the restarts run the same programs (a turn's window is traced)
+        return dataclasses.replace(self, **dict.fromkeys(TRACED), turns=0, turn_window=None, restarts=1,
                                    objective=dataclasses.replace(obj, sigma_factor=None, **weights))
 
     def to_dict(self) -> dict:

@@ -250,6 +250,36 @@ def portfolio_keys(key: jax.Array, searches: int) -> list:
     return [key] + [jax.random.fold_in(key, i) for i in range(1, searches)]
 
 
+def restart_keys(key: jax.Array, restarts: int) -> list:
+    """Each restart's key: ``key`` for the first, then ``fold_in(fold_in(key, 0), r)`` (a
+    stream the portfolio's keys do not use), so restart ``r`` is the fit without restarts
+    with that key."""
+    base = jax.random.fold_in(key, 0)
+    return [key] + [jax.random.fold_in(base, r) for r in range(1, restarts)]
+
+
+def round_keys(key: jax.Array, config: FitConfig) -> list[list]:
+    """The keys of each restart's searches: :func:`portfolio_keys` of its :func:`restart_keys`
+    (:attr:`FitConfig.restarts` lists of :attr:`FitConfig.round_searches`)."""
+    return [portfolio_keys(k, config.round_searches) for k in restart_keys(key, config.restarts)]
+
+
+def run_searches(skel: Skeleton, config: FitConfig, params: FitParams, key: jax.Array, search) -> list:
+    """Every search of a fit, one after another: per restart, the portfolio's, then
+    the turn searches about that portfolio's cheapest answer.  ``search(key, params)``
+    runs one and returns its :class:`FitResult`; returns them all, in order.  The Python driver of :meth:`Fitter.run` and
+    :func:`~jaxpose.parallel.fit_islands`; :func:`fit` traces the same order."""
+    out = []
+    for keys in round_keys(key, config):
+        done = [search(k, p) for k, p in zip(keys, config.search_params(params))]
+        if config.turns:
+            answer = cheapest(done)
+            done += [search(k, p) for k, p in
+                     zip(keys[config.portfolio:], turn_params(skel, config, params, answer.pose.root_rpy))]
+        out += done
+    return out
+
+
 def turn_params(skel: Skeleton, config: FitConfig, params: FitParams, root_rpy: jax.Array) -> list[FitParams]:
     """The traced settings of the turn searches (:attr:`FitConfig.turns`) about an
     answer whose root orientation is ``root_rpy``: unstaged, the root held within
@@ -287,17 +317,24 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
     sweep rates or weights under one compiled program (even vmapped over them).
     With ``config.staged_alternatives`` the searches of the portfolio run one after
     another (``lax.map``: one traced search), then ``config.turns`` turn searches
-    about the cheapest answer, and the cheapest answer of all is returned.
+    about the cheapest answer, and the cheapest answer of all is returned; with
+    ``config.restarts`` that whole round runs again (``lax.map``) with keys of its
+    own (:func:`round_keys`), and the cheapest round's answer is returned.
     """
     config = config.validate().for_skeleton(skeleton)
     params = config.params() if params is None else params
-    every, keys, n = config.search_params(params), portfolio_keys(key, config.searches), config.portfolio
-    full, config = config, config.static()
+    every, n, full = config.search_params(params), config.portfolio, config
+    static = config.static()
     stack = lambda trees: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *trees)  # noqa: E731
     searches = lambda ks, ps: jax.lax.map(  # noqa: E731
-        lambda kp: single_search(cloud, skeleton, kp[0], config, kp[1]), (jnp.stack(ks), stack(ps)))
-    res = single_search(cloud, skeleton, key, config, params) if n == 1 else cheapest(searches(keys[:n], every))
-    if full.turns:  # from the portfolio's answer, as Fitter.run
-        turned = searches(keys[n:], turn_params(skeleton, full, params, res.pose.root_rpy))
-        res = cheapest(jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), res, turned))
-    return res
+        lambda kp: single_search(cloud, skeleton, kp[0], static, kp[1]), (ks, stack(ps)))
+
+    def one_round(keys):  # the portfolio, then the turns about its answer, as Fitter.run
+        res = single_search(cloud, skeleton, keys[0], static, params) if n == 1 else cheapest(searches(keys[:n], every))
+        if full.turns:
+            turned = searches(keys[n:], turn_params(skeleton, full, params, res.pose.root_rpy))
+            res = cheapest(jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), res, turned))
+        return res
+
+    rounds = jnp.stack([jnp.stack(ks) for ks in round_keys(key, full)])
+    return one_round(rounds[0]) if full.restarts == 1 else cheapest(jax.lax.map(one_round, rounds))
