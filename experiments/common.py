@@ -194,7 +194,7 @@ def planned_evaluations(config: FitConfig, n_points: int = InputOptions.max_poin
     ``c`` candidates (GA: ``min(final_refine_top, P)``, otherwise 1); a coarse-to-fine GA
     rescores its population and best (``P + 1``) once, on a cloud of ``n_points``;
     times ``islands``; the limb sweep's evaluations once per search (``skel`` needed when it is
-    on); all of it once per search of the portfolio (``config.searches``).
+    on); all of it once per search of the fit (``config.searches``: the portfolio's and the turns', per restart).
     :meth:`FitRunner.run` compares this with every fit's actual counts.
     """
     if config.generations is None:

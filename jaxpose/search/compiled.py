@@ -194,8 +194,7 @@ class Fitter:
     def run(self, cloud: Cloud, key: jax.Array, progress=None, hypotheses: int = 1,
             time_budget: float | None = None) -> FitResult:
         """A whole fit; ``progress(generation, best_cost, evaluations)`` after every epoch
-        (with a portfolio, :attr:`FitConfig.staged_alternatives`, the generations of
-        all its searches in a row, up to ``generations * searches``).
+        (the generations run by all its searches in a row, up to ``generations * searches``).
 
         The searches of the portfolio run one after another with the same programs,
         then the turn searches (:attr:`FitConfig.turns`) about the portfolio's answer,
@@ -211,19 +210,21 @@ class Fitter:
         if time_budget is not None and not require_finite("time_budget", time_budget) > 0:
             raise ConfigError(f"time_budget must be > 0 seconds, got {time_budget}")
         t0 = time.perf_counter()
-        n, G = self.config.searches, self.config.generations
+        n = self.config.searches
         share = None if time_budget is None else time_budget / n
-        results, states, best, evals = [], [], float("inf"), 0
+        results, states, best, evals, done = [], [], float("inf"), 0, 0
 
         def search(k, params):
-            nonlocal best, evals
-            report, i = None, len(results)
-            if progress is not None:
-                def report(gen, cost, e, i=i, best=best, evals=evals):
-                    progress(i * G + gen, min(best, cost), evals + e)
+            nonlocal best, evals, done
+            report, ran = None, [0]
+            if progress is not None:  # generations counted as run (a budget can end a search early)
+                def report(gen, cost, e, best=best, evals=evals, done=done):
+                    ran[0] = gen
+                    progress(done + gen, min(best, cost), evals + e)
             res, st = self._search(cloud, k, params, report, share)
+            done += ran[0]
             results.append(res)
-            states.append(st)
+            states.append(st if hypotheses > 1 else None)  # only the hypotheses read the final states
             best = min(best, float(res.cost))
             evals += int(res.objective_evaluations) + int(res.gradient_evaluations)
             return res

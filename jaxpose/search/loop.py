@@ -250,12 +250,15 @@ def portfolio_keys(key: jax.Array, searches: int) -> list:
     return [key] + [jax.random.fold_in(key, i) for i in range(1, searches)]
 
 
+RESTART_SALT = 2**31
+"""Restart ``r`` >= 1 runs with ``fold_in(key, RESTART_SALT + r)``: far above the small
+indices that :func:`portfolio_keys` and ``split`` inside a search reach."""
+
+
 def restart_keys(key: jax.Array, restarts: int) -> list:
-    """Each restart's key: ``key`` for the first, then ``fold_in(fold_in(key, 0), r)`` (a
-    stream the portfolio's keys do not use), so restart ``r`` is the fit without restarts
-    with that key."""
-    base = jax.random.fold_in(key, 0)
-    return [key] + [jax.random.fold_in(base, r) for r in range(1, restarts)]
+    """Each restart's key: ``key`` for the first, then ``fold_in(key, RESTART_SALT + r)``,
+    so restart ``r`` is the fit without restarts with that key."""
+    return [key] + [jax.random.fold_in(key, RESTART_SALT + r) for r in range(1, restarts)]
 
 
 def round_keys(key: jax.Array, config: FitConfig) -> list[list]:
@@ -267,8 +270,9 @@ def round_keys(key: jax.Array, config: FitConfig) -> list[list]:
 def run_searches(skel: Skeleton, config: FitConfig, params: FitParams, key: jax.Array, search) -> list:
     """Every search of a fit, one after another: per restart, the portfolio's, then
     the turn searches about that portfolio's cheapest answer.  ``search(key, params)``
-    runs one and returns its :class:`FitResult`; returns them all, in order.  The Python driver of :meth:`Fitter.run` and
-    :func:`~jaxpose.parallel.fit_islands`; :func:`fit` traces the same order."""
+    runs one and returns its :class:`FitResult`; returns them all, in order.  The Python
+    driver of :meth:`Fitter.run` and :func:`~jaxpose.parallel.fit_islands`; :func:`fit`
+    traces the same order."""
     out = []
     for keys in round_keys(key, config):
         done = [search(k, p) for k, p in zip(keys, config.search_params(params))]

@@ -283,20 +283,21 @@ def test_fit_options_reach_the_config():
 
     args = build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", "--coarse-points", "256",
                                       "--islands", "3", "--population", "20", "--generations", "40",
-                                      "--tie-lengths", "--limb-sweep", "7", "--pivot-sweep", "5", "--turns", "2"])
+                                      "--tie-lengths", "--limb-sweep", "7", "--pivot-sweep", "5", "--turns", "2",
+                                      "--restarts", "3"])
     cfg = config_from_args(args)
     assert (cfg.coarse_points, cfg.islands, cfg.population, cfg.generations, cfg.limb_sweep, cfg.pivot_sweep,
-            cfg.turns) == (256, 3, 20, 40, 7, 5, 2)
+            cfg.turns, cfg.restarts) == (256, 3, 20, 40, 7, 5, 2, 3)
     assert cfg.tie_lengths
     default = config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider"]))
     assert default == FitConfig()
 
 
-@pytest.mark.parametrize("value", ["4", "-1"])
-def test_impossible_turns_are_one_line_naming_the_flag(value, capsys):
+@pytest.mark.parametrize("flag,value", [("--turns", "4"), ("--turns", "-1"), ("--restarts", "0")])
+def test_impossible_turns_and_restarts_are_one_line_naming_the_flag(flag, value, capsys):
     from jaxpose.cli import build_parser
     from jaxpose.commands.fit import config_from_args
     from jaxpose.errors import ConfigError
 
-    with pytest.raises(ConfigError, match=r"^--turns must be"):
-        config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", "--turns", value]))
+    with pytest.raises(ConfigError, match=rf"^{flag} must be"):
+        config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", flag, value]))

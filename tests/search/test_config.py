@@ -138,17 +138,18 @@ def params_value(params, name):
 
 
 def test_static_config_drops_the_traced_settings_only():
-    config = dataclasses.replace(GA, mutation_rate=0.4, objective=dataclasses.replace(OBJ, free_space_weight=2.0))
+    config = dataclasses.replace(GA, mutation_rate=0.4, restarts=3,
+                                 objective=dataclasses.replace(OBJ, free_space_weight=2.0))
     static = config.static()
     for name in TRACED:
         assert getattr(static, name) is None, name
     for name in TRACED_OBJECTIVE:
         assert getattr(static.objective, name) is None, name
     # everything else is kept
-    # the turn searches run the same programs with a traced window: read from the full config only
-    assert (static.turns, static.turn_window) == (0, None)
+    # the turn searches (a traced window) and the restarts run the same programs: read from the full config only
+    assert (static.turns, static.turn_window, static.restarts) == (0, None, 1)
     for f in dataclasses.fields(config):
-        if f.name not in TRACED + ("objective", "turns", "turn_window"):
+        if f.name not in TRACED + ("objective", "turns", "turn_window", "restarts"):
             assert getattr(static, f.name) == getattr(config, f.name), f.name
     for f in dataclasses.fields(config.objective):
         if f.name not in TRACED_OBJECTIVE:
@@ -158,7 +159,7 @@ def test_static_config_drops_the_traced_settings_only():
                                 objective=dataclasses.replace(config.objective, sigma_factor=1.0,
                                                               collision_weight=3.0))
     assert other.static() == static and hash(other.static()) == hash(static)
-    assert dataclasses.replace(config, turns=3, turn_window=0.3).static() == static
+    assert dataclasses.replace(config, turns=3, turn_window=0.3, restarts=1).static() == static
     # ... but not one with another shape or schedule
     assert dataclasses.replace(config, population=9).static() != static
 

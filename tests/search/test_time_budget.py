@@ -40,6 +40,16 @@ def test_a_budget_ends_the_search_after_the_epoch_it_runs_out_in(slow_clock):
     assert np.isfinite(float(res.cost)) and float(res.cost) <= hist[1]
 
 
+def test_progress_counts_the_generations_each_search_ran(slow_clock):
+    """Two restarts share the budget; each ends after its first epoch: progress and the
+    result document count 2 + 2 generations run, not the second search's nominal start."""
+    epochs = []
+    res = fit_cloud(spider_cloud(), skeleton(), 0, dataclasses.replace(LONG, restarts=2),
+                    progress=lambda g, c, e: epochs.append(g), time_budget=5.0)
+    assert epochs == [2, 4]
+    assert int(res.objective_evaluations) == 2 * expected_counts(dataclasses.replace(LONG, generations=2))[0]
+
+
 def test_without_a_progress_callback_too(slow_clock):
     res = fit_cloud(spider_cloud(), skeleton(), 0, LONG, time_budget=5.0)
     assert int(res.objective_evaluations) == expected_counts(dataclasses.replace(LONG, generations=2))[0]

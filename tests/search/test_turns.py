@@ -133,7 +133,7 @@ def test_the_turn_searches_start_from_the_portfolios_answer_and_the_cheapest_is_
     """Oracle: the portfolio alone, then each turn search run alone with its documented key and settings."""
     with_turns, portfolio, _ = runs
     skel, cfg = skeleton(), TURNS.for_skeleton(skeleton())
-    keys = portfolio_keys(jax.random.key(5), cfg.searches)
+    keys = portfolio_keys(jax.random.key(5), cfg.round_searches)
     alone = [Fitter(skel, cfg)._search(spider_cloud(), k, p, None, None)[0]
              for k, p in zip(keys[2:], turn_params(skel, cfg, cfg.params(), portfolio.pose.root_rpy))]
     for res, c in zip(alone, turned_roots(skel, portfolio.pose.root_rpy, 2)):  # each held in its window
