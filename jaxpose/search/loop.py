@@ -330,8 +330,9 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
     every, n, full = config.search_params(params), config.portfolio, config
     static = config.static()
     stack = lambda trees: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *trees)  # noqa: E731
-    searches = lambda ks, ps: jax.lax.map(  # noqa: E731
-        lambda kp: single_search(cloud, skeleton, kp[0], static, kp[1]), (ks, stack(ps)))
+    searches = lambda ks, ps: jax.lax.map(  # noqa: E731  (ks: a list of keys, or stacked inside the restarts' map)
+        lambda kp: single_search(cloud, skeleton, kp[0], static, kp[1]),
+        (ks if isinstance(ks, jax.Array) else jnp.stack(ks), stack(ps)))
 
     def one_round(keys):  # the portfolio, then the turns about its answer, as Fitter.run
         res = single_search(cloud, skeleton, keys[0], static, params) if n == 1 else cheapest(searches(keys[:n], every))
@@ -340,5 +341,7 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
             res = cheapest(jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), res, turned))
         return res
 
-    rounds = jnp.stack([jnp.stack(ks) for ks in round_keys(key, full)])
-    return one_round(rounds[0]) if full.restarts == 1 else cheapest(jax.lax.map(one_round, rounds))
+    rounds = round_keys(key, full)
+    if full.restarts == 1:  # the keys as a list: the program of a fit without restarts, as before them
+        return one_round(rounds[0])
+    return cheapest(jax.lax.map(one_round, jnp.stack([jnp.stack(ks) for ks in rounds])))
