@@ -65,6 +65,7 @@ def test_progress_runs_over_every_search_of_every_restart(runs):
     assert all(b <= a for a, b in zip(costs, costs[1:]))  # the best so far, over all searches
 
 
+@pytest.mark.slow  # two more compilations of the whole traced search (a setting off by default)
 def test_the_traced_fit_runs_the_same_restarts():
     """fit (lax.map over the restarts, each a portfolio and a turn) against the traced fit
     without restarts run with each restart's key: the cheaper of the two, to round-off."""
