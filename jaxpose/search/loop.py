@@ -277,7 +277,7 @@ def run_searches(skel: Skeleton, config: FitConfig, params: FitParams, key: jax.
     for keys in round_keys(key, config):
         done = [search(k, p) for k, p in zip(keys, config.search_params(params))]
         if config.turns:
-            answer = cheapest(done)
+            answer = done[int(cheapest_index(jnp.stack([r.cost for r in done])))]
             done += [search(k, p) for k, p in
                      zip(keys[config.portfolio:], turn_params(skel, config, params, answer.pose.root_rpy))]
         out += done
@@ -327,7 +327,7 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
     """
     config = config.validate().for_skeleton(skeleton)
     params = config.params() if params is None else params
-    every, n, full = config.search_params(params), config.portfolio, config
+    every, n = config.search_params(params), config.portfolio
     static = config.static()
     stack = lambda trees: jax.tree_util.tree_map(lambda *x: jnp.stack(x), *trees)  # noqa: E731
     searches = lambda ks, ps: jax.lax.map(  # noqa: E731  (ks: a list of keys, or stacked inside the restarts' map)
@@ -336,12 +336,12 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
 
     def one_round(keys):  # the portfolio, then the turns about its answer, as Fitter.run
         res = single_search(cloud, skeleton, keys[0], static, params) if n == 1 else cheapest(searches(keys[:n], every))
-        if full.turns:
-            turned = searches(keys[n:], turn_params(skeleton, full, params, res.pose.root_rpy))
+        if config.turns:
+            turned = searches(keys[n:], turn_params(skeleton, config, params, res.pose.root_rpy))
             res = cheapest(jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a[None], b]), res, turned))
         return res
 
-    rounds = round_keys(key, full)
-    if full.restarts == 1:  # the keys as a list: the program of a fit without restarts, as before them
+    rounds = round_keys(key, config)
+    if config.restarts == 1:  # the keys as a list: the program of a fit without restarts, as before them
         return one_round(rounds[0])
     return cheapest(jax.lax.map(one_round, jnp.stack([jnp.stack(ks) for ks in rounds])))
