@@ -17,6 +17,12 @@ os.environ["JAXPOSE_CACHE_DIR"] = "0"
 if sys.platform.startswith("linux"):  # MuJoCo refuses MUJOCO_GL=egl (at import) elsewhere
     os.environ.setdefault("MUJOCO_GL", "egl")
 
+# XLA reads XLA_FLAGS when JAX starts its backend (after this file runs); subprocesses inherit it.
+# The suite compiles with XLA's quickest settings (tests/xla_settings.py; JAXPOSE_TEST_XLA=default: XLA's own).
+from xla_settings import with_quick  # noqa: E402
+
+os.environ["XLA_FLAGS"] = with_quick(os.environ.get("XLA_FLAGS", ""))
+
 
 import pytest  # noqa: E402
 

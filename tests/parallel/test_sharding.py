@@ -21,13 +21,16 @@ import sys
 
 import numpy as np
 import pytest
+from xla_settings import without_quick
 
 WORKER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "batch_worker.py")
 
 
 def forced_devices_env(n: int) -> dict:
+    """The environment of a worker with ``n`` host devices, compiled with XLA's defaults (the
+    programs users run: one device and several agree to 1e-6 there, tests/xla_settings.py)."""
     env = dict(os.environ)
-    env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={n}".strip()
+    env["XLA_FLAGS"] = f"{without_quick(env.get('XLA_FLAGS', ''))} --xla_force_host_platform_device_count={n}".strip()
     env["JAX_PLATFORMS"] = "cpu"
     return env
 
