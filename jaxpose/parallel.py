@@ -263,28 +263,40 @@ def _island_program(config: FitConfig, mesh: Mesh):
 
 
 def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitConfig(),
-                mesh: Mesh | None = None, params: FitParams | None = None) -> FitResult:
+                mesh: Mesh | None = None, params: FitParams | None = None, progress=None) -> FitResult:
     """One fit with its islands split over the devices of ``mesh`` (default: this
     process's devices); the same searches as :func:`~jaxpose.search.fit` (a portfolio's
     one after another).
 
     Islands are independent until successive halving, which copies the better half's
     populations over the worse half's; XLA then exchanges them between devices.
-    ``config.islands`` must be a multiple of the mesh's size.  Returns the
-    :class:`FitResult` (JAX arrays, replicated)."""
+    ``config.islands`` must be a multiple of the mesh's size.  ``progress(generations,
+    best_cost, evaluations)`` is called after each search (one compiled program runs a
+    whole search).  Returns the :class:`FitResult` (JAX arrays, replicated)."""
     config = config.validate().for_skeleton(skeleton)
     params = config.params() if params is None else params
     mesh = Mesh(np.array(local_devices()), (AXIS,)) if mesh is None else mesh
     if len(mesh.axis_names) != 1 or config.islands % mesh.devices.size:
-        raise ConfigError(f"fit_islands: {config.islands} islands do not split over a one-axis mesh of "
-                          f"{mesh.devices.size} devices (the islands must be a multiple of the devices)")
+        raise ConfigError(f"{config.islands} islands do not split evenly over {mesh.devices.size} devices: "
+                          "the islands must be a multiple of the devices")
     from .search.loop import cheapest, run_searches
 
     cloud = Cloud(np.asarray(cloud.points, np.float32), np.asarray(cloud.weights, np.float32))
     host = lambda tree: jax.tree_util.tree_map(np.asarray, tree)  # noqa: E731
     program = _island_program(config, mesh)
+    done = {"generations": 0, "best": float("inf"), "evaluations": 0}
+
+    def search(k, p):
+        r = program(cloud, host(skeleton), k, host(p))
+        if progress is not None:
+            done["generations"] += config.generations
+            done["best"] = min(done["best"], float(r.cost))
+            done["evaluations"] += int(r.objective_evaluations)
+            progress(done["generations"], done["best"], done["evaluations"])
+        return r
+
     # the searches one after another, as Fitter.run runs them
-    results = run_searches(skeleton, config, params, key, lambda k, p: program(cloud, host(skeleton), k, host(p)))
+    results = run_searches(skeleton, config, params, key, search)
     return results[0] if len(results) == 1 else cheapest(results)
 
 

@@ -245,6 +245,24 @@ def load_fit_skeleton(skeleton: str | Skeleton, search_lengths: bool = False,
     return load_skeleton(skel_file, search_lengths=search_lengths, max_capsules=max_capsules), skel_file
 
 
+def fit_on_devices(cloud: Cloud, skel: Skeleton, seed: int, config: FitConfig, devices: int,
+                   progress=None) -> FitResult:
+    """:func:`~jaxpose.parallel.fit_islands` over this process's first ``devices`` devices
+    with an integer seed, its wall time (compilation included on a first call) recorded."""
+    import time
+
+    import jax
+    import jax.numpy as jnp
+    from jax.sharding import Mesh
+
+    from .parallel import AXIS, fit_islands, local_devices
+
+    mesh = Mesh(np.array(local_devices(devices)), (AXIS,))
+    t = time.perf_counter()
+    result = jax.block_until_ready(fit_islands(cloud, skel, jax.random.key(seed), config, mesh, progress=progress))
+    return result._replace(wall_time=jnp.float32(time.perf_counter() - t))
+
+
 def fit_file(
     path: str,
     skeleton: str | Skeleton,
@@ -257,6 +275,7 @@ def fit_file(
     max_capsules: int | None = None,
     hypotheses: int = 1,
     time_budget: float | None = None,
+    devices: int | None = None,
 ) -> FitOutput:
     """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth image
     or a point-cloud file (``.ply``, ``.pcd``, ``.xyz``, an ``(N, 3)`` ``.npy``: see
@@ -270,8 +289,13 @@ def fit_file(
     (:func:`load_fit_skeleton`), for the record.  ``hypotheses > 1``: also the best
     distinct poses (:mod:`jaxpose.search.hypotheses`), under ``"hypotheses"`` in the document.
     ``time_budget``: seconds of search (:meth:`~jaxpose.search.Fitter.run`), recorded with
-    the generations run under ``"time_budget"``."""
+    the generations run under ``"time_budget"``.  ``devices``: split the fit's islands over
+    this process's first ``devices`` devices (:func:`~jaxpose.parallel.fit_islands`; neither
+    hypotheses nor a time budget then); ``None``: :func:`~jaxpose.search.fit_cloud` on one."""
     config.validate()
+    if devices is not None and (hypotheses > 1 or time_budget is not None):
+        flag = "hypotheses" if hypotheses > 1 else "time_budget"
+        raise ConfigError(f"{flag} fits on one device; a fit split over devices (devices={devices}) has none")
     options.validate()
     skel, skel_file = load_fit_skeleton(skeleton, search_lengths, max_capsules)
     skel_file = skel_file or skeleton_file
@@ -293,7 +317,10 @@ def fit_file(
         if progress is not None:
             progress(gen, best, evals)
 
-    result = fit_cloud(cloud, skel, seed, config, report, hypotheses, time_budget)
+    if devices is None:
+        result = fit_cloud(cloud, skel, seed, config, report, hypotheses, time_budget)
+    else:
+        result = fit_on_devices(cloud, skel, seed, config, devices, report)
     if not (np.isfinite(float(result.cost)) and np.all(np.isfinite(np.asarray(result.links.end)))):
         raise ConfigError(
             f"{path}: the fit of {skel.name!r} ended with a non-finite cost or pose; "
@@ -304,6 +331,8 @@ def fit_file(
         doc["frame"] = frame
     doc["skeleton"]["search_lengths"] = bool(search_lengths)
     doc["skeleton"]["max_capsules"] = robot_max_capsules(skel_file, max_capsules, not isinstance(skeleton, Skeleton))
+    if devices is not None:
+        doc["timing"]["devices"] = int(devices)  # the fit's islands split over them
     if time_budget is not None:
         doc["time_budget"] = {"seconds": float(time_budget), "generations_run": generations_run[0]}
     doc["warnings"] = notes

@@ -102,7 +102,8 @@ def register(sub) -> None:
     p.add_argument("--devices", type=int, metavar="N",
                    help="several inputs: fit them in batches sharded over the first N devices of this machine "
                         "(default: every device; on a machine whose only device is its CPU the inputs are "
-                        "fitted one by one unless --devices or --batch is given)")
+                        "fitted one by one unless --devices or --batch is given); one input: split its "
+                        "islands over the first N devices (default: one device; --islands a multiple of N)")
     p.add_argument("--batch", type=int, metavar="K",
                    help=f"several inputs: images per device in one compiled batch (default {BATCH}; results "
                         "are written after each batch)")
@@ -283,12 +284,12 @@ def batched(args, jobs) -> bool:
     if args.devices is not None and args.devices < 1:
         raise ConfigError(f"--devices must be >= 1, got {args.devices}")
     many = len(jobs) > 1 or jax.process_count() > 1
-    if args.devices is not None and args.devices > 1 and not many:
-        raise ConfigError(f"--devices {args.devices}: one input is fitted on one device (--devices shards batches "
-                          "of several inputs; jaxpose.parallel.fit_islands splits one fit's islands)")
     if args.devices is not None and args.devices > jax.local_device_count():
         raise ConfigError(f"--devices must lie within 1 .. {jax.local_device_count()} (this machine's "
                           f"{jax.devices()[0].platform.upper()} devices), got {args.devices}")
+    if not many and args.devices is not None and args.islands % args.devices:
+        raise ConfigError(f"--devices {args.devices}: one input's {args.islands} islands do not split evenly over "
+                          f"{args.devices} devices (--islands must be a multiple of --devices)")
     if args.resume and args.out_dir is None:
         raise ConfigError("--resume works with --out-dir (it skips the results already in DIR)")
     one_by_one = [f for f, on in (("--hypotheses", args.hypotheses > 1), ("--time-budget", args.time_budget))
@@ -297,7 +298,7 @@ def batched(args, jobs) -> bool:
         raise ConfigError(f"{one_by_one[0]} fits one input at a time, on one process; this run has "
                           f"{jax.process_count()} processes")
     if one_by_one and args.devices is not None:
-        raise ConfigError(f"--devices shards batches of inputs; {one_by_one[0]} fits one input at a time")
+        raise ConfigError(f"{one_by_one[0]} fits one input at a time, on one device: not with --devices")
     # one CPU device fits a batch no faster than one image after another (measured in
     # docs/scaling.md), and one by one each result equals a run on that input alone
     lone_cpu = jax.device_count() == 1 and jax.devices()[0].platform == "cpu"
@@ -351,7 +352,7 @@ def run(args: argparse.Namespace) -> int:
                 out = fit_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
                                      search_lengths=args.search_lengths, skeleton_file=skel_file,
                                      max_capsules=capsules, hypotheses=args.hypotheses,
-                                     time_budget=args.time_budget)
+                                     time_budget=args.time_budget, devices=args.devices)
         finally:
             bar.close()  # end the progress line, also before an error message or Ctrl-C
         msg = (f"{label}{out.skeleton.name}: cost {out.document['cost']:.5f}, "

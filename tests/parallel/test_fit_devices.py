@@ -44,6 +44,11 @@ run("resume_one", "--out-dir", f"{d}/all", "--resume")
 run("too_many", "--out-dir", f"{d}/one", "--devices", "3")
 run("resume_no_dir", "--out", f"{d}/x.json", "--resume", inputs=inputs[:1] + inputs[3:])
 run("devices_hypotheses", "--out-dir", f"{d}/one", "--devices", "2", "--hypotheses", "2")
+one = inputs[:1] + inputs[3:]  # one input: its two islands over two devices, and over one
+run("islands2", "--out", f"{d}/isl2.json", "--devices", "2", inputs=one)
+run("islands1", "--out", f"{d}/isl1.json", "--devices", "1", inputs=one)
+run("islands_odd", "--out", f"{d}/x.json", "--devices", "2", "--islands", "3", inputs=one)
+run("islands_budget", "--out", f"{d}/x.json", "--devices", "2", "--time-budget", "5", inputs=one)
 json.dump(log, open(f"{d}/log.json", "w"))
 """
 
@@ -91,9 +96,26 @@ def test_resume_skips_what_is_written(runs):
 @pytest.mark.parametrize("name, message", [
     ("too_many", "jaxpose: error: --devices must lie within 1 .. 2 (this machine's CPU devices), got 3"),
     ("resume_no_dir", "jaxpose: error: --resume works with --out-dir"),
-    ("devices_hypotheses", "jaxpose: error: --devices shards batches of inputs; --hypotheses fits one input"),
+    ("devices_hypotheses", "jaxpose: error: --hypotheses fits one input at a time, on one device: not with --devices"),
+    ("islands_odd", "jaxpose: error: --devices 2: one input's 3 islands do not split evenly over 2 devices"),
+    ("islands_budget", "jaxpose: error: --time-budget fits one input at a time, on one device: not with --devices"),
 ])
 def test_bad_options(runs, name, message):
     _, log = runs
     assert log[name]["rc"] == 2 and log[name]["err"].startswith(message) and log[name]["err"].count("\n") == 1
     assert log[name]["out"] == ""
+
+
+def test_one_input_splits_its_islands_over_the_devices(runs):
+    """``--devices N`` on one input: the fit's islands split over N devices
+    (jaxpose.parallel.fit_islands); two devices give what one gives."""
+    d, log = runs
+    assert log["islands2"]["rc"] == 0 and log["islands1"]["rc"] == 0, log["islands2"]["err"] + log["islands1"]["err"]
+    assert log["islands2"]["out"].startswith("spider: cost ") and log["islands2"]["out"].count("\n") == 1
+    a, b = (json.loads((d / f"isl{n}.json").read_text()) for n in (2, 1))
+    assert a["timing"]["devices"] == 2 and b["timing"]["devices"] == 1 and a["config"] == b["config"]
+    np.testing.assert_allclose(a["cost"], b["cost"], rtol=1e-6)
+    ends = lambda doc: np.array([link["end"] for link in doc["links"]])  # noqa: E731
+    np.testing.assert_allclose(ends(a), ends(b), atol=1e-5)
+    assert a["evaluations"]["objective"] == b["evaluations"]["objective"] > 0
+    assert not (d / "x.json").exists()  # the refused runs wrote nothing
