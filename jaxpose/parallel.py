@@ -291,7 +291,7 @@ def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitCo
         if progress is not None:
             done["generations"] += config.generations
             done["best"] = min(done["best"], float(r.cost))
-            done["evaluations"] += int(r.objective_evaluations)
+            done["evaluations"] += int(r.objective_evaluations) + int(r.gradient_evaluations)  # as Fitter.run
             progress(done["generations"], done["best"], done["evaluations"])
         return r
 

@@ -294,8 +294,7 @@ def fit_file(
     hypotheses nor a time budget then); ``None``: :func:`~jaxpose.search.fit_cloud` on one."""
     config.validate()
     if devices is not None and (hypotheses > 1 or time_budget is not None):
-        flag = "hypotheses" if hypotheses > 1 else "time_budget"
-        raise ConfigError(f"{flag} fits on one device; a fit split over devices (devices={devices}) has none")
+        raise ConfigError(f"hypotheses and time_budget need the fit on one device (devices=None), got devices={devices}")
     options.validate()
     skel, skel_file = load_fit_skeleton(skeleton, search_lengths, max_capsules)
     skel_file = skel_file or skeleton_file

@@ -8,20 +8,23 @@ import sys
 
 import numpy as np
 from xla_probe import probe
-from xla_settings import quick_options, with_quick, without_quick
+from xla_settings import _name, quick_options, with_quick, without_quick
 
 PROBE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "xla_probe.py")
 
 
-def test_the_suite_runs_with_the_quick_settings_unless_asked_not_to():
-    flags = os.environ.get("XLA_FLAGS", "")
-    if os.environ.get("JAXPOSE_TEST_XLA", "").strip().lower() == "default":
-        assert with_quick(flags) == flags
-    else:
-        assert all(q in flags.split() for q in quick_options()), flags
-    mine = "--xla_backend_optimization_level=1 --xla_force_host_platform_device_count=2"
-    assert without_quick(mine) == "--xla_force_host_platform_device_count=2"  # and a user's own value of them
-    assert without_quick(with_quick("")) == ""
+def test_the_suite_runs_with_the_quick_settings_unless_asked_not_to(monkeypatch):
+    names = {_name(f) for f in os.environ.get("XLA_FLAGS", "").split()}
+    default = os.environ.get("JAXPOSE_TEST_XLA", "").strip().lower() == "default"
+    assert default or all(_name(q) in names for q in quick_options())  # set, by the suite (or by the user)
+    monkeypatch.delenv("JAXPOSE_TEST_XLA", raising=False)
+    assert with_quick("").split() == quick_options()
+    mine = "--xla_backend_optimization_level=2 --xla_force_host_platform_device_count=2"
+    assert with_quick(mine).split()[:2] == mine.split()  # a user's own value is kept, not doubled
+    assert [_name(f) for f in with_quick(mine).split()].count("--xla_backend_optimization_level") == 1
+    assert without_quick(mine) == "--xla_force_host_platform_device_count=2"
+    monkeypatch.setenv("JAXPOSE_TEST_XLA", "default")
+    assert with_quick(mine) == mine
 
 
 def test_quick_settings_change_cost_and_gradient_by_round_off_only(tmp_path):

@@ -15,6 +15,8 @@ import os
 def quick_options() -> list[str]:
     """The quick settings, as ``XLA_FLAGS`` options (an unknown debug option would abort XLA)."""
     quick = ["--xla_backend_optimization_level=0"]
+    # jaxpose._xla_flags.fast_compile_options has the same window, but importing jaxpose computes
+    # (and so starts JAX's backend) before these flags could be set
     try:
         from importlib.metadata import version
 
@@ -33,7 +35,8 @@ def with_quick(flags: str) -> str:
     """``flags`` (an ``XLA_FLAGS`` value) with the quick settings added where not already set."""
     if os.environ.get("JAXPOSE_TEST_XLA", "").strip().lower() == "default":
         return flags
-    return " ".join([flags] + [q for q in quick_options() if _name(q) not in flags]).strip()
+    have = {_name(f) for f in flags.split()}
+    return " ".join([flags] + [q for q in quick_options() if _name(q) not in have]).strip()
 
 
 def without_quick(flags: str) -> str:

@@ -102,8 +102,9 @@ def register(sub) -> None:
     p.add_argument("--devices", type=int, metavar="N",
                    help="several inputs: fit them in batches sharded over the first N devices of this machine "
                         "(default: every device; on a machine whose only device is its CPU the inputs are "
-                        "fitted one by one unless --devices or --batch is given); one input: split its "
-                        "islands over the first N devices (default: one device; --islands a multiple of N)")
+                        "fitted one by one unless --devices or --batch is given); one input: one fit with its "
+                        "islands split over the first N devices (--islands a multiple of N; without --devices "
+                        "the fit runs on one device, epoch by epoch)")
     p.add_argument("--batch", type=int, metavar="K",
                    help=f"several inputs: images per device in one compiled batch (default {BATCH}; results "
                         "are written after each batch)")

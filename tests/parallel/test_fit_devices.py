@@ -45,6 +45,21 @@ run("too_many", "--out-dir", f"{d}/one", "--devices", "3")
 run("resume_no_dir", "--out", f"{d}/x.json", "--resume", inputs=inputs[:1] + inputs[3:])
 run("devices_hypotheses", "--out-dir", f"{d}/one", "--devices", "2", "--hypotheses", "2")
 one = inputs[:1] + inputs[3:]  # one input: its two islands over two devices, and over one
+import jaxpose.parallel as par
+real_islands = par.fit_islands
+
+def spy(cloud, skel, key, config, mesh=None, params=None, progress=None):  # what the command ran
+    seen = []
+    def report(*p):
+        seen.append(list(p))
+        if progress is not None:
+            progress(*p)
+    r = real_islands(cloud, skel, key, config, mesh, params, report)
+    log.setdefault("islands_calls", []).append({"devices": int(mesh.devices.size), "progress": seen,
+                                                "generations": config.generations * config.searches})
+    return r
+
+par.fit_islands = spy
 run("islands2", "--out", f"{d}/isl2.json", "--devices", "2", inputs=one)
 run("islands1", "--out", f"{d}/isl1.json", "--devices", "1", inputs=one)
 run("islands_odd", "--out", f"{d}/x.json", "--devices", "2", "--islands", "3", inputs=one)
@@ -118,4 +133,11 @@ def test_one_input_splits_its_islands_over_the_devices(runs):
     ends = lambda doc: np.array([link["end"] for link in doc["links"]])  # noqa: E731
     np.testing.assert_allclose(ends(a), ends(b), atol=1e-5)
     assert a["evaluations"]["objective"] == b["evaluations"]["objective"] > 0
+    calls = log["islands_calls"]  # fit_islands ran, on a mesh of two devices, then of one
+    assert [c["devices"] for c in calls] == [2, 1]
+    for c, doc in zip(calls, (a, b)):  # progress after each search, up to the whole fit's generations and counts
+        gens, best, evals = zip(*c["progress"])
+        assert len(gens) > 1 and list(gens) == sorted(gens) and gens[-1] == c["generations"]
+        assert np.isclose(best[-1], doc["cost"], rtol=1e-6)  # the cheapest search's cost is the answer's
+        assert evals[-1] == doc["evaluations"]["objective"] + doc["evaluations"]["gradient"]
     assert not (d / "x.json").exists()  # the refused runs wrote nothing
