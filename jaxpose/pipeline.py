@@ -294,7 +294,8 @@ def fit_file(
     hypotheses nor a time budget then); ``None``: :func:`~jaxpose.search.fit_cloud` on one."""
     config.validate()
     if devices is not None and (hypotheses > 1 or time_budget is not None):
-        raise ConfigError(f"hypotheses and time_budget need the fit on one device (devices=None), got devices={devices}")
+        raise ConfigError("hypotheses and time_budget need the fit on one device (devices=None), "
+                          f"got devices={devices}")
     options.validate()
     skel, skel_file = load_fit_skeleton(skeleton, search_lengths, max_capsules)
     skel_file = skel_file or skeleton_file
