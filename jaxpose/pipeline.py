@@ -253,11 +253,10 @@ def fit_on_devices(cloud: Cloud, skel: Skeleton, seed: int, config: FitConfig, d
 
     import jax
     import jax.numpy as jnp
-    from jax.sharding import Mesh
 
-    from .parallel import AXIS, fit_islands, local_devices
+    from .parallel import device_mesh, fit_islands
 
-    mesh = Mesh(np.array(local_devices(devices)), (AXIS,))
+    mesh = device_mesh(devices)  # one process here (several take the batches)
     t = time.perf_counter()
     result = jax.block_until_ready(fit_islands(cloud, skel, jax.random.key(seed), config, mesh, progress=progress))
     return result._replace(wall_time=jnp.float32(time.perf_counter() - t))
