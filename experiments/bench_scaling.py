@@ -1,5 +1,7 @@
 """Images per second of a sharded batch (jaxpose.fit_batch) against the device count,
-and of fitting the same images one by one (fit_cloud), on this machine.
+and of fitting the same images one by one (fit_cloud), on this machine; with
+``--split-one``, also the time of one fit whose islands are split over the devices
+(jaxpose.parallel.fit_islands, what ``jaxpose fit INPUT --devices N`` runs).
 
 Devices are whatever JAX sees.  On a CPU, force host devices before JAX starts::
 
@@ -27,7 +29,7 @@ from outputs import log, rel, write_json
 
 from jaxpose.metrics import evaluate
 from jaxpose.objective import Cloud
-from jaxpose.parallel import device_mesh, fit_batch
+from jaxpose.parallel import device_mesh, fit_batch, fit_islands
 from jaxpose.search import FitConfig, fit_cloud
 
 
@@ -40,6 +42,8 @@ def main(argv=None) -> int:
     ap.add_argument("--islands", type=int, default=FitConfig.islands)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--one-by-one", action="store_true", help="also fit the images one by one (fit_cloud)")
+    ap.add_argument("--split-one", action="store_true",
+                    help="also one fit (the first image) with its islands split over each device count")
     ap.add_argument("--out", default=os.path.join(C.RESULTS_DIR, "bench_scaling.json"))
     args = ap.parse_args(argv)
     C.ensure_data([args.model])
@@ -75,6 +79,7 @@ def main(argv=None) -> int:
         log(f"{n:>3} device(s): {len(images)} images in {med:.2f} s (range {min(times):.2f}-{max(times):.2f}; "
             f"cold {cold:.1f} s): {len(images) / med:.2f} images/s; link accuracy {np.mean(pcp):.3f}, "
             f"costs {' '.join(f'{c:.5f}' for c in rows[-1]['costs'])}")
+    split = [split_one(images[0], ds.skeleton, config, n, args.repeats) for n in counts] if args.split_one else None
     single = None
     if args.one_by_one:
         fit_cloud(images[0].cloud, ds.skeleton, 0, config)  # compiles
@@ -93,10 +98,29 @@ def main(argv=None) -> int:
         "title": "images/s of a sharded batch against devices", "machine": machine_info(),
         "platform": jax.devices()[0].platform, "local_devices": jax.local_device_count(),
         "xla_flags": os.environ.get("XLA_FLAGS", ""), "model": args.model, "config": config.to_dict(),
-        "rows": rows, "one_by_one": single,
+        "rows": rows, "one_by_one": single, "split_one": split,
     })
     log(f"wrote {rel(args.out)}")
     return 0
+
+
+def split_one(image, skel, config, n: int, repeats: int) -> dict:
+    """One fit of ``image`` with its islands split over ``n`` devices: cold (compiles), then ``repeats`` warm."""
+    mesh, key = device_mesh(n), jax.random.key(0)
+    t0 = time.perf_counter()
+    jax.block_until_ready(fit_islands(image.cloud, skel, key, config, mesh))
+    cold, times = time.perf_counter() - t0, []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        res = jax.block_until_ready(fit_islands(image.cloud, skel, key, config, mesh))
+        times.append(time.perf_counter() - t0)
+    pcp = evaluate(np.asarray(res.links.start, np.float64), np.asarray(res.links.end, np.float64),
+                   image.truth["start"], image.truth["end"], skel)["symmetric"]["pcp"]
+    med = statistics.median(times)
+    log(f"one fit, islands over {n} device(s): {med:.2f} s (range {min(times):.2f}-{max(times):.2f}; cold "
+        f"{cold:.1f} s), cost {float(res.cost):.5f}, link accuracy {pcp:.3f}")
+    return {"devices": n, "cold_seconds": cold, "seconds": times, "median_seconds": med,
+            "cost": float(res.cost), "link_accuracy": pcp}
 
 
 if __name__ == "__main__":
