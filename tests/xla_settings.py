@@ -3,7 +3,8 @@
 The suite is mostly the compilation of small searches, so it compiles with XLA:CPU's
 quickest settings: LLVM's optimisation level 0 and, on the jaxlib versions jaxpose
 uses it on (jaxpose/_xla_flags.py), the older fusion emitters.  They change the
-machine code, not the operations: a result moves by float32 round-off at most
+machine code, not the operations: each computed value moves by float32 round-off at
+most, though a search that branches on such a value may take another path
 (docs/install.md, "Tests").  ``JAXPOSE_TEST_XLA=default`` keeps XLA's own settings.
 """
 
