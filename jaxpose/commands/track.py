@@ -27,11 +27,18 @@ def register(sub) -> None:
                        description="Track a skeleton through depth images or point clouds in order: the first "
                                    "frame (and any frame after the subject was lost) by the global search of "
                                    "'jaxpose fit', every other frame from the last pose. Writes DIR/<input>.json "
-                                   "per frame and DIR/track.json.")
-    p.add_argument("depth", metavar="INPUT", nargs="+",
+                                   "per frame and DIR/track.json; with --sequences, DIR/<sequence>/ each.")
+    p.add_argument("depth", metavar="INPUT", nargs="*",
                    help="depth images (16-bit PNG in millimetres, 2-D .npy in metres) or point clouds (.ply, "
                         ".pcd, .xyz, (N, 3) .npy) in order; or one folder (its such files in name order); or "
-                        "one (T, H, W) .npy stack of depth frames in metres")
+                        "one (T, H, W) .npy stack of depth frames in metres (or --sequences instead)")
+    p.add_argument("--sequences", nargs="+", metavar="SEQ",
+                   help="several sequences at once, each a folder or a (T, H, W) .npy stack read as INPUT is: "
+                        "tracked together by one compiled program sharded over the devices (shorter ones padded "
+                        "with empty frames), each written to DIR/<SEQ stem>/ as one sequence's files")
+    p.add_argument("--devices", type=int, metavar="N",
+                   help="with --sequences: shard the sequences over the first N devices of this machine "
+                        "(default: every device)")
     p.add_argument("--skeleton", required=True, help="skeleton file (.toml/.json/.urdf/.xml) or a shipped name")
     p.add_argument("--out-dir", required=True, metavar="DIR",
                    help="write DIR/<input name>.json per frame (a stack: DIR/<stem>_<frame:05d>.json) and "
@@ -416,7 +423,11 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline import load_fit_skeleton, robot_max_capsules
     from ..tracking import Tracker
     from .fit import input_options
+    from .track_sequences import check_combinations, run_sequences
 
+    check_combinations(args)
+    if args.sequences is not None:
+        return run_sequences(args)
     config = track_config_from_args(args)
     check_max_capsules(args, args.skeleton)
     check_robot_option("--search-lengths", args.search_lengths, args.skeleton, "whose links set their own length_range")

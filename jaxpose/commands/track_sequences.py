@@ -1,0 +1,219 @@
+"""``jaxpose track --sequences``: several sequences tracked at once, sharded over the devices.
+
+Every sequence (a folder of frames, or one ``(T, H, W)`` ``.npy`` stack) is read as
+``jaxpose track`` reads its ``INPUT``; then all of them go through
+:func:`jaxpose.parallel.track_batch`: :func:`jaxpose.tracking.track` (one
+``lax.scan`` over the frames) vmapped over the sequences, one compiled program
+sharded over the first ``--devices`` devices.  A shorter sequence is padded with
+empty frames (weight 0: the tracker calls them lost), and only its real frames
+are written.  Each sequence's results go to ``DIR/<sequence stem>/``, the files
+``jaxpose track`` writes for one sequence.
+
+A scan reports no time per frame: each frame's ``wall_seconds`` is ``null``, and the
+batch's wall time and compilation time are recorded under ``summary.batch``
+(and ``timing.batch`` of each frame's document; docs/result_json.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import os
+import time
+
+import numpy as np
+
+from ..errors import ConfigError
+from .progress import check_output_path
+
+# summary()'s times of single frames, which a scan does not measure (null here)
+FRAME_TIMES = ("fps", "median_frame_seconds", "p90_frame_seconds", "first_frame_seconds", "global_median_seconds")
+COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
+                  "/jax/core/compile/backend_compile_duration")
+
+
+@dataclasses.dataclass
+class Sequence:
+    """One ``--sequences`` argument: its frames and where its results go."""
+
+    source: str  # as given
+    name: str  # DIR/<name>/
+    frames: list  # track.Frame
+    stack: np.ndarray | None  # the memory-mapped (T, H, W) stack, or None for a folder
+
+
+def check_combinations(args) -> None:
+    """:class:`ConfigError` for options that do not go with ``--sequences`` (or need it)."""
+    if args.sequences is None:
+        if not args.depth:
+            raise ConfigError("give the frames of one sequence (INPUT ...) or several sequences (--sequences SEQ ...)")
+        if args.devices is not None:
+            raise ConfigError("--devices works with --sequences (one sequence is tracked frame by frame, "
+                              "on one device)")
+        return
+    if args.depth:
+        raise ConfigError(f"INPUT ({args.depth[0]}) and --sequences exclude each other: give each sequence "
+                          "(a folder or a .npy stack) to --sequences")
+    if args.video:
+        raise ConfigError("--video works with one sequence (INPUT ...), not with --sequences")
+
+
+def check_devices(devices: int | None) -> None:
+    """``--devices`` within this machine's devices; several processes are not supported here."""
+    import jax
+
+    from .. import distributed
+
+    distributed.check()
+    if devices is not None and devices < 1:
+        raise ConfigError(f"--devices must be >= 1, got {devices}")
+    if devices is not None and devices > jax.local_device_count():
+        raise ConfigError(f"--devices must lie within 1 .. {jax.local_device_count()} (this machine's "
+                          f"{jax.devices()[0].platform.upper()} devices), got {devices}")
+    if jax.process_count() > 1:
+        raise ConfigError(f"--sequences runs on one process; this run has {jax.process_count()} processes")
+
+
+def expand_sequences(paths: list[str], out_dir: str, depth_scale=None) -> list[Sequence]:
+    """Each ``--sequences`` path as its frames; :class:`ConfigError` or
+    :class:`~jaxpose.errors.DepthError` for a path that is neither a folder nor a stack,
+    and for two sequences that would write the same folder."""
+    from .track import _load_stack, expand_inputs
+
+    seqs, seen = [], {}
+    for path in paths:
+        if not os.path.exists(path):
+            raise ConfigError(f"--sequences {path}: no such folder or file")
+        frames = expand_inputs([path])
+        folder = os.path.isdir(path)
+        if not folder and frames[0].index is None:
+            raise ConfigError(f"--sequences {path}: a sequence is a folder of frames or one (T, H, W) .npy stack")
+        name = os.path.basename(os.path.abspath(path)) if folder else os.path.splitext(os.path.basename(path))[0]
+        if name.casefold() in seen:
+            raise ConfigError(f"sequences {seen[name.casefold()]} and {path} would both write {name}/ in --out-dir")
+        seen[name.casefold()] = path
+        if any(f.name.casefold() == "track" for f in frames):
+            raise ConfigError(f"--sequences {path}: a frame named track.* would write track.json, the summary; "
+                              "rename it")
+        target = os.path.join(out_dir, name)
+        if os.path.exists(target) and not os.path.isdir(target):
+            raise ConfigError(f"--out-dir {out_dir}: {name} (sequence {path}) exists and is not a folder")
+        if os.path.isdir(target):
+            check_output_path(os.path.join(target, "track.json"), "--out-dir")
+        stack = _load_stack(frames[0].source, depth_scale) if frames[0].index is not None else None
+        seqs.append(Sequence(path, name, frames, stack))
+    return seqs
+
+
+@contextlib.contextmanager
+def compile_seconds():
+    """``[seconds]``: the time JAX spends tracing, lowering and compiling programs (or loading
+    them from the compilation cache) inside the block."""
+    import jax
+
+    total = [0.0]
+
+    def listener(event, duration, **kwargs):
+        if event in COMPILE_EVENTS:
+            total[0] += duration
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        yield total
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+
+
+def batch_summary(entries: list[dict], batch: dict) -> dict:
+    """track.json's ``summary`` of one sequence of the batch: the counts of :func:`summary`,
+    no time per frame (null), and the batch's times under ``batch``."""
+    from .track import summary
+
+    s = summary([{**e, "wall_seconds": 0.0} for e in entries])  # the counts; the times are set to null below
+    s.update(dict.fromkeys(FRAME_TIMES))
+    s["batch"] = batch
+    return s
+
+
+def _count(n: int, what: str) -> str:
+    return f"{n} {what}{'' if n == 1 else 's'}"
+
+
+def run_sequences(args: argparse.Namespace) -> int:
+    import jax
+
+    from ..io.atomic import write_json
+    from ..io.capsules import MAX_CAPSULES
+    from ..io.fit_result import file_sha256
+    from ..objective import Cloud
+    from ..parallel import device_mesh, track_batch
+    from ..pipeline import load_fit_skeleton, robot_max_capsules
+    from ..tracking import MODES
+    from .fit import input_options
+    from .robot_options import check_max_capsules, check_robot_option
+    from .track import FrameReader, _empty_cloud, _input_record, frame_document, track_config_from_args
+
+    config = track_config_from_args(args)
+    check_max_capsules(args, args.skeleton)
+    check_robot_option("--search-lengths", args.search_lengths, args.skeleton, "whose links set their own length_range")
+    check_devices(args.devices)
+    if not os.path.isdir(args.out_dir):
+        raise ConfigError(f"--out-dir {args.out_dir}: not a directory")
+    check_output_path(os.path.join(args.out_dir, "track.json"), "--out-dir")  # DIR is writable
+    seqs = expand_sequences(args.sequences, args.out_dir, args.depth_scale)
+    every = [s.frames[0].source if s.stack is not None else f.source for s in seqs for f in s.frames]
+    options = input_options(argparse.Namespace(**{**vars(args), "depth": every}))
+    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
+    capsules = robot_max_capsules(skel_file, MAX_CAPSULES if args.max_capsules is None else args.max_capsules, True)
+    config = config.validate().for_skeleton(skel)
+    # every frame of every sequence read and checked before the search
+    readers = [FrameReader(options, s.stack) for s in seqs]
+    observed = [[r.read(f)[1:] for f in s.frames] for r, s in zip(readers, seqs)]
+    T = max(len(s.frames) for s in seqs)
+    empty = _empty_cloud(options.max_points)
+    padded = [[c for _, c, _ in obs] + [empty] * (T - len(obs)) for obs in observed]
+    clouds = Cloud(np.stack([np.stack([np.asarray(c.points, np.float32) for c in p]) for p in padded]),
+                   np.stack([np.stack([np.asarray(c.weights, np.float32) for c in p]) for p in padded]))
+    mesh = device_mesh(args.devices)
+    devices = int(mesh.devices.size)
+    platform = mesh.devices.flat[0].platform.upper()
+    if not args.quiet:
+        lengths = sorted({len(s.frames) for s in seqs})
+        span = f"{T} frames each" if len(lengths) == 1 else f"{lengths[0]} to {T} frames (padded to {T})"
+        print(f"{_count(len(seqs), 'sequence')} of {span} on {devices} {platform} device(s): compiling and running one "
+              "program (no progress until it ends)", flush=True)
+    t0 = time.perf_counter()
+    with compile_seconds() as compiled:
+        frames = track_batch(clouds, skel, jax.random.key(args.seed), config, mesh)
+    wall = time.perf_counter() - t0
+    batch = {"sequences": len(seqs), "devices": devices, "processes": 1, "frames": T, "wall_seconds": wall,
+             "compile_seconds": compiled[0]}
+    for i, (s, obs) in enumerate(zip(seqs, observed)):
+        folder = os.path.join(args.out_dir, s.name)
+        os.makedirs(folder, exist_ok=True)
+        stack_sha = file_sha256(s.frames[0].source) if s.stack is not None else None
+        entries = []
+        for t, (f, (k, cloud, note)) in enumerate(zip(s.frames, obs)):
+            result = jax.tree_util.tree_map(lambda x: x[i, t], frames.result)  # noqa: B023 - used at once
+            mode = MODES[int(frames.mode[i, t])]
+            record = _input_record(f, options, k, cloud, stack_sha)
+            doc = frame_document(skel, skel_file, result, mode, config, args.seed, record, t, cloud, note)
+            doc["skeleton"]["search_lengths"] = bool(args.search_lengths)
+            doc["skeleton"]["max_capsules"] = capsules
+            doc["timing"] = {"wall_seconds": None, "batch": batch}
+            write_json(os.path.join(folder, f.name + ".json"), doc)
+            entries.append({"input": f.source if f.index is None else f.name,  # the path as given
+                            "frame": t, "mode": mode, "cost": doc["cost"], "wall_seconds": None})
+        summ = batch_summary(entries, batch)
+        write_json(os.path.join(folder, "track.json"), {"skeleton": skel.name, "frames": entries, "summary": summ})
+        if not args.quiet:
+            print(f"{s.source}: {summ['frames']} frames, {summ['reinitialisations']} re-initialisations, "
+                  f"{summ['lost_frames']} lost -> {folder}", flush=True)
+    if not args.quiet:
+        print(f"{skel.name}: {_count(len(seqs), 'sequence')}, {sum(len(s.frames) for s in seqs)} frames on {devices} "
+              f"{platform} device(s) in {wall:.1f} s ({compiled[0]:.1f} s compiling) -> {args.out_dir}", flush=True)
+    return 0
+
+
+__all__ = ["run_sequences", "check_combinations", "expand_sequences"]
