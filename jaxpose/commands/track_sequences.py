@@ -162,7 +162,7 @@ def run_sequences(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out-dir {args.out_dir}: not a directory")
     check_output_path(os.path.join(args.out_dir, "track.json"), "--out-dir")  # DIR is writable
     seqs = expand_sequences(args.sequences, args.out_dir, args.depth_scale)
-    every = [s.frames[0].source if s.stack is not None else f.source for s in seqs for f in s.frames]
+    every = [f.source for s in seqs for f in (s.frames[:1] if s.stack is not None else s.frames)]  # a stack once
     options = input_options(argparse.Namespace(**{**vars(args), "depth": every}))
     skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
     capsules = robot_max_capsules(skel_file, MAX_CAPSULES if args.max_capsules is None else args.max_capsules, True)
