@@ -53,7 +53,7 @@ from .cloud import Cloud, cloud_centre, cloud_spread
 from .collision import CollisionPairs, collision_cost
 from .config import ObjectiveConfig
 from .data import LINK_GROUP, data_cost, num_blocks, point_capsule_distance, spread_order, to_blocks
-from .free_space import FreeSpaceMap, free_space_cost, free_space_map, seen_fraction
+from .free_space import FreeSpaceMap, free_space_cost, free_space_map
 
 
 class Observation(NamedTuple):
@@ -89,11 +89,7 @@ def population_cost(obs: Observation, start, end, radius, config: ObjectiveConfi
     if config.free_space_weight != 0:
         cost = cost + fs_w * free_space_cost(obs.fmap, obs.sigma, start, end, config.free_space_samples, radius)
     if config.collision_weight != 0 and pairs is not None and len(pairs.i):
-        scale = None
-        if config.collision_seen:  # the data term holds capsules the camera sees (docs/objective.md)
-            seen = seen_fraction(obs.fmap, start, end, config.free_space_samples, radius)  # (P, L)
-            scale = 1.0 - jnp.minimum(seen[:, pairs.i], seen[:, pairs.j]).T  # (K, P)
-        cost = cost + col_w * collision_cost(pairs, obs.sigma, start, end, radius, config.collision_margin, scale)
+        cost = cost + col_w * collision_cost(pairs, obs.sigma, start, end, radius, config.collision_margin)
     return cost
 
 
@@ -107,5 +103,5 @@ def paper_cost(points, weights, start, end, radius, sigma=None) -> jax.Array:
 __all__ = [
     "LINK_GROUP", "Cloud", "CollisionPairs", "FreeSpaceMap", "ObjectiveConfig", "Observation", "cloud_centre",
     "cloud_spread", "collision_cost", "data_cost", "free_space_cost", "free_space_map", "num_blocks", "observe",
-    "paper_cost", "point_capsule_distance", "population_cost", "seen_fraction", "spread_order", "to_blocks",
+    "paper_cost", "point_capsule_distance", "population_cost", "spread_order", "to_blocks",
 ]

@@ -20,10 +20,9 @@ class CollisionPairs(NamedTuple):
     rho: jax.Array
 
 
-def collision_cost(pairs: CollisionPairs, sigma, start, end, radius, margin: float, scale=None) -> jax.Array:
+def collision_cost(pairs: CollisionPairs, sigma, start, end, radius, margin: float) -> jax.Array:
     """Collision penalty ``(P,)`` of posed capsules ``start, end (P, L, 3)``, ``radius (P, L)``
-    (see the module docstring); ``scale (K, P)``, when given, multiplies each pair's penalty
-    (held constant: no derivative flows into it).
+    (see the module docstring).
 
     Reverse-mode derivatives come from a custom VJP: the distance of two segments
     changes with their ends as the distance of their closest points does (the
@@ -42,47 +41,33 @@ def collision_cost(pairs: CollisionPairs, sigma, start, end, radius, margin: flo
     r = jnp.broadcast_to(jnp.asarray(radius, start.dtype), start.shape[:-1]).T
     i, j = (k if isinstance(k, (np.ndarray, jax.Array)) else np.asarray(k, np.int32) for k in (pairs.i, pairs.j))
     penalty = _pair_penalty(i, j, start.shape[1], start.dtype)
-    args = (s, e, r, jnp.asarray(pairs.rho, start.dtype), jnp.asarray(sigma, start.dtype),
-            jnp.asarray(margin, start.dtype))
-    if scale is None:
-        return penalty(*args)
-    scaled = _pair_penalty(i, j, start.shape[1], start.dtype, scaled=True)
-    return scaled(*args, jax.lax.stop_gradient(jnp.asarray(scale, start.dtype)))
+    return penalty(s, e, r, jnp.asarray(pairs.rho, start.dtype), jnp.asarray(sigma, start.dtype),
+                   jnp.asarray(margin, start.dtype))
 
 
-def _pair_penalty(i, j, L: int, dtype, scaled: bool = False):
-    """``penalty(s, e (3, L, P), r (L, P), rho (K,), sigma, margin[, scale (K, P)]) -> (P,)``
-    for the pairs ``i, j (K,)`` (static or traced)."""
+def _pair_penalty(i, j, L: int, dtype):
+    """``penalty(s, e (3, L, P), r (L, P), rho (K,), sigma, margin) -> (P,)`` for the
+    pairs ``i, j (K,)`` (static or traced)."""
     to_i = (jnp.arange(L)[:, None] == i[None, :]).astype(dtype)  # (L, K): pair k -> link i[k]
     to_j = (jnp.arange(L)[:, None] == j[None, :]).astype(dtype)
 
-    def forward(s, e, r, rho, sigma, margin, *scale):
+    def forward(s, e, r, rho, sigma, margin):
         d, u, v, diff = closest_points(s[:, i], e[:, i], s[:, j], e[:, j], xp=jnp)  # (K, P), (3, K, P)
         reach = rho[:, None] * (r[i] + r[j])
         h = jnp.maximum(margin * reach - d, 0.0)
-        pen = jnp.log1p(h / sigma)
-        res = (d, u, v, diff, h, reach, rho, r, sigma, margin)
-        if scaled:
-            return jnp.sum(pen * scale[0], 0), res + (scale[0], pen)
-        return jnp.sum(pen, 0), res
+        return jnp.sum(jnp.log1p(h / sigma), 0), (d, u, v, diff, h, reach, rho, r, sigma, margin)
 
     def backward(res, g):
-        d, u, v, diff, h, reach, rho, r, sigma, margin = res[:10]
-        w, pen = res[10:] if scaled else (None, None)
-        gw = g * w if scaled else g  # (K, P) scaled, else (P,)
-        dh = jnp.where(margin * reach > d, gw / (sigma + h), 0.0)  # d penalty / d clearance, (K, P)
+        d, u, v, diff, h, reach, rho, r, sigma, margin = res
+        dh = jnp.where(margin * reach > d, g / (sigma + h), 0.0)  # d penalty / d clearance, (K, P)
         n = diff * (-dh / d)  # d penalty / d (closest point on i)
         links = lambda M, x: jnp.einsum("lk,...kp->...lp", M, x)  # noqa: E731
         g_s = links(to_i, n * (1.0 - u)) - links(to_j, n * (1.0 - v))
         g_e = links(to_i, n * u) - links(to_j, n * v)
         g_r = links(to_i + to_j, dh * rho[:, None] * margin)
         g_rho = jnp.sum(dh * margin * (r[i] + r[j]), 1)
-        if scaled:
-            g_sigma = -jnp.sum(gw * h / (sigma * (sigma + h)), 0)  # (P,)
-        else:
-            g_sigma = -g * jnp.sum(h / (sigma * (sigma + h)), 0)
-        out = (g_s, g_e, g_r, g_rho, _sum_to(g_sigma, sigma.shape), _sum_to(jnp.sum(dh * reach, 0), margin.shape))
-        return out + ((g * pen,) if scaled else ())
+        g_sigma = -g * jnp.sum(h / (sigma * (sigma + h)), 0)  # (P,)
+        return g_s, g_e, g_r, g_rho, _sum_to(g_sigma, sigma.shape), _sum_to(jnp.sum(dh * reach, 0), margin.shape)
 
     penalty = jax.custom_vjp(lambda *a: forward(*a)[0])
     penalty.defvjp(forward, backward)

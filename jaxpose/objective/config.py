@@ -18,7 +18,6 @@ class ObjectiveConfig:
     free_space_grid: int = 40
     collision_weight: float = 0.1
     collision_margin: float = 0.8  # clearance of two capsules' axes, a fraction of r_i + r_j
-    collision_seen: bool = False  # a pair is charged 1 - min(seen_i, seen_j) of its penalty (docs/objective.md)
     block: int = 256  # points per streamed block in the kernel
 
     def validate(self) -> "ObjectiveConfig":

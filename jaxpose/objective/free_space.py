@@ -44,10 +44,13 @@ def free_space_map(cloud: Cloud, grid: int = 40) -> FreeSpaceMap:
     return FreeSpaceMap(depth, lo, cell)
 
 
-def _axis_samples(fmap: FreeSpaceMap, start, end, samples: int, radius):
-    """Capsule-axis samples against the map: ``front`` (the capsule's front-surface depth,
-    ``z - radius``), ``z_obs`` (the map's depth there) and ``valid`` (in front of the camera,
-    inside the map, on data), each ``(P, L, S)``."""
+def free_space_cost(fmap: FreeSpaceMap, sigma, start, end, samples: int, radius=None) -> jax.Array:
+    """Mean free-space penalty of capsule-axis samples, ``start, end (P, L, 3)`` -> ``(P,)``.
+
+    A sample's depth is that of the capsule's front surface, ``z - radius``
+    (``radius`` ``(L,)`` or ``(P, L)``; omitted: 0), so that a fat capsule cannot hide
+    its axis behind the observed surface while its front bulges out of it.
+    """
     grid = fmap.depth.shape[0]
     t = (jnp.arange(samples, dtype=start.dtype) + 0.5) / samples
     pts = start[..., None, :] + t[:, None] * (end - start)[..., None, :]  # (P, L, S, 3)
@@ -61,29 +64,7 @@ def _axis_samples(fmap: FreeSpaceMap, start, end, samples: int, radius):
     ijc = jnp.clip(jnp.where(inside[..., None], ij, 0), 0, grid - 1).astype(jnp.int32)
     z_obs = fmap.depth[ijc[..., 1], ijc[..., 0]]
     front = z if radius is None else z - jnp.broadcast_to(radius, start.shape[:-1])[..., None]
-    return front, z_obs, inside & jnp.isfinite(z_obs) & in_front_of_camera
-
-
-def free_space_cost(fmap: FreeSpaceMap, sigma, start, end, samples: int, radius=None) -> jax.Array:
-    """Mean free-space penalty of capsule-axis samples, ``start, end (P, L, 3)`` -> ``(P,)``.
-
-    A sample's depth is that of the capsule's front surface, ``z - radius``
-    (``radius`` ``(L,)`` or ``(P, L)``; omitted: 0), so that a fat capsule cannot hide
-    its axis behind the observed surface while its front bulges out of it.
-    """
-    front, z_obs, valid = _axis_samples(fmap, start, end, samples, radius)
     gap = jnp.clip(z_obs - front, 0.0, sigma)  # in front of the observed surface
-    gap = jnp.where(valid, gap, sigma)
+    gap = jnp.where(inside & jnp.isfinite(z_obs) & in_front_of_camera, gap, sigma)
     pen = jnp.log1p(gap / sigma)
     return jnp.mean(pen.reshape(pen.shape[0], -1), -1)
-
-
-def seen_fraction(fmap: FreeSpaceMap, start, end, samples: int, radius) -> jax.Array:
-    """Fraction ``(P, L)`` of each capsule's axis samples whose front surface lies on the
-    observed surface, within one capsule diameter of it (the map keeps the nearest depth
-    of a neighbourhood, anywhere on the capsule's visible side): the capsules the camera
-    sees, which the data term already holds in place."""
-    front, z_obs, valid = _axis_samples(fmap, start, end, samples, radius)
-    r = jnp.broadcast_to(radius, start.shape[:-1])[..., None]
-    on_surface = valid & (jnp.abs(z_obs - front) <= 2.0 * r)
-    return jnp.mean(on_surface.astype(start.dtype), -1)
