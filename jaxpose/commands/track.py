@@ -96,6 +96,9 @@ def register(sub) -> None:
                    help="N frames after the global search last ran, run it again beside the local search and keep "
                         "the cheaper fit (a fit wrong from the start gets another chance; each costs a global fit; "
                         f"0: never, default {t.recheck_every})")
+    k.add_argument("--track-recheck-margin", type=float, default=t.recheck_margin, metavar="M",
+                   help="a recheck's global fit replaces the tracked one only when cheaper by this fraction "
+                        f"(default {t.recheck_margin})")
     k.add_argument("--min-points", type=int, default=t.min_points,
                    help=f"a frame with fewer points is lost: the subject is out of view (default {t.min_points})")
     k.add_argument("--loss-ratio", type=float, default=t.loss_ratio,
@@ -107,7 +110,7 @@ def register(sub) -> None:
 
 TRACK_FLAGS = {"population": "--track-population", "generations": "--track-generations",
                "refine_steps": "--track-refine-steps", "sweep_limbs": "--track-sweep", "min_points": "--min-points",
-               "recheck_every": "--track-recheck",
+               "recheck_every": "--track-recheck", "recheck_margin": "--track-recheck-margin",
                "loss_ratio": "--loss-ratio"}
 
 
@@ -119,7 +122,8 @@ def track_config_from_args(args):
     fit = config_from_args(args)
     cfg = TrackConfig(fit=fit, population=args.track_population, generations=args.track_generations,
                       refine_steps=args.track_refine_steps, sweep_limbs=args.track_sweep,
-                      recheck_every=args.track_recheck, min_points=args.min_points, loss_ratio=args.loss_ratio)
+                      recheck_every=args.track_recheck,
+                      recheck_margin=args.track_recheck_margin, min_points=args.min_points, loss_ratio=args.loss_ratio)
     try:
         return cfg.validate()
     except ConfigError as e:

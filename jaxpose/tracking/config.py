@@ -79,6 +79,10 @@ class TrackConfig:
     kept: a fit wrong from the start (which the loss test, comparing a frame with its
     predecessors, cannot see) gets another chance.  Such a frame costs a global fit
     (0: never, the default; docs/tracking.md, "Rechecks")."""
+    recheck_margin: float = 0.0
+    """A recheck's global fit replaces the tracked one only when it costs less than
+    ``1 - recheck_margin`` times as much: a slightly cheaper global fit is as often a
+    wrong pose the objective prefers as a better one (docs/tracking.md, "Rechecks")."""
 
     def validate(self) -> "TrackConfig":
         """Raise :class:`ConfigError` naming the first impossible setting; return ``self``."""
@@ -103,6 +107,8 @@ class TrackConfig:
                 raise ConfigError(f"{name} must lie in [0, 1{')' if name == 'cost_memory' else ']'}, got {v!r}")
         if not require_finite("scale_window", self.scale_window) >= 1.0:
             raise ConfigError(f"scale_window must be >= 1, got {self.scale_window!r}")
+        if not 0.0 <= require_finite("recheck_margin", self.recheck_margin) < 1.0:
+            raise ConfigError(f"recheck_margin must lie in [0, 1), got {self.recheck_margin!r}")
         if not require_finite("loss_ratio", self.loss_ratio) > 1.0:
             raise ConfigError(f"loss_ratio must be > 1, got {self.loss_ratio!r}")
         return self

@@ -155,12 +155,18 @@ def _local_part(skel: Skeleton, config: TrackConfig, state: TrackState, cloud: C
     return _Pending(local, points, present, run_local, present & (~state.valid | lost | recheck), recheck, k_global)
 
 
+def keeps_local(run_local, run_global, recheck, local_cost, global_cost, margin: float) -> jax.Array:
+    """Whether a frame keeps its local fit: the global one replaces it unless dearer (a NaN
+    global cost never replaces a fitted frame), and on a recheck only when cheaper by ``margin``."""
+    bar = local_cost * jnp.where(recheck, 1.0 - margin, 1.0)
+    return run_local & ~(global_cost < bar) | ~run_global
+
+
 def _finish_part(config: TrackConfig, state: TrackState, p: _Pending, glob: FitResult):
     """This frame's result (the better of the local and the global one, NaN when lost) and the next state."""
     none = jax.tree_util.tree_map(lambda x: jnp.full_like(x, jnp.nan) if x.dtype.kind == "f" else jnp.zeros_like(x),
                                   p.local)._replace(distance_evaluations=jnp.float32(0), wall_time=jnp.float32(0))
-    # the global result unless worse (a NaN global cost never replaces a fitted frame)
-    keep_local = p.run_local & ~(glob.cost < p.local.cost) | ~p.run_global
+    keep_local = keeps_local(p.run_local, p.run_global, p.recheck, p.local.cost, glob.cost, config.recheck_margin)
     result = _select(p.present, _select(keep_local, p.local, glob), none)
     mode = jnp.where(~p.present, LOST, jnp.where(p.run_global, GLOBAL, TRACKED)).astype(jnp.int32)
     new_pose = pose_to_vector(result.pose)

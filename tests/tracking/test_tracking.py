@@ -285,6 +285,49 @@ def test_a_recheck_that_finds_nothing_cheaper_changes_nothing(skel, motion):
         np.testing.assert_array_equal(np.asarray(got[t].links.end), np.asarray(plain[t].links.end))
 
 
+def test_a_recheck_margin_keeps_the_tracked_fit_unless_the_global_one_is_that_much_cheaper():
+    """The decision against a plain Python oracle over every case: a recheck's global fit replaces
+    the local one only below ``(1 - margin)`` times its cost, any other global fit when cheaper,
+    a NaN global cost never, and a frame without a local fit always takes the global one."""
+    from jaxpose.tracking.step import keeps_local
+
+    def oracle(run_local, run_global, recheck, local, glob, margin):
+        if not run_global:
+            return True
+        if not run_local:
+            return False
+        return not glob < local * ((1 - margin) if recheck else 1.0)
+
+    for margin in (0.0, 0.1):
+        for run_local in (False, True):
+            for run_global in (False, True):
+                for recheck in (False, True):
+                    for glob in (0.5, 0.85, 0.95, 1.0, 1.2, float("nan")):
+                        got = bool(keeps_local(jnp.asarray(run_local), jnp.asarray(run_global), jnp.asarray(recheck),
+                                               jnp.float32(1.0), jnp.float32(glob), margin))
+                        assert got == oracle(run_local, run_global, recheck, 1.0, glob, margin), \
+                            (margin, run_local, run_global, recheck, glob)
+
+
+def test_a_recheck_within_its_margin_changes_nothing(skel, motion):
+    """The upside-down start of the test above, whose recheck takes the global fit without a
+    margin: with a margin above that fit's saving the frame keeps the local fit and every frame
+    equals a Tracker's without rechecks."""
+    clouds, truth = motion
+    start = truth[0]._replace(root_rpy=truth[0].root_rpy + jnp.asarray([np.pi, 0.0, 0.0], jnp.float32))
+    key = jax.random.key(3)
+    plain = Tracker(skel, CFG, key=key, init=start)
+    want = [plain.update(c) for c in clouds[:4]]
+    saving = 1.0 - float(_recheck_oracle(skel, clouds[2], 2).cost) / float(want[2].cost)
+    assert 0.0 < saving < 0.9  # the case under test: the global fit is cheaper, by less than the margin
+    margined = Tracker(skel, dataclasses.replace(CFG, recheck_every=2, recheck_margin=0.9), key=key, init=start)
+    for t, c in enumerate(clouds[:4]):
+        got = margined.update(c)
+        assert margined.mode == ("global" if t == 2 else "tracked"), (t, margined.mode)
+        assert float(got.cost) == float(want[t].cost), t
+        np.testing.assert_array_equal(np.asarray(got.links.end), np.asarray(want[t].links.end))
+
+
 @pytest.mark.slow  # a third compile of the whole search (about 25 s on 2 cores)
 def test_track_under_vmap_equals_each_sequence(skel, motion, tracked):
     clouds, _ = motion
@@ -306,6 +349,8 @@ def test_config_is_checked():
         TrackConfig(generations=0).validate()
     with pytest.raises(jp.ConfigError, match="recheck_every"):
         TrackConfig(recheck_every=-1).validate()
+    with pytest.raises(jp.ConfigError, match="recheck_margin"):
+        TrackConfig(recheck_margin=1.0).validate()
     with pytest.raises(jp.ConfigError, match="velocity"):
         TrackConfig(velocity=2.0).validate()
     with pytest.raises(jp.ConfigError, match="population"):
