@@ -178,8 +178,8 @@ def fit_batch(clouds: Cloud, skeleton: Skeleton, keys, config: FitConfig = FitCo
 
 def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh | None = None):
     """Track several sequences at once, sharded over the devices of ``mesh`` as
-    :func:`fit_batch` shards images: :func:`jaxpose.tracking.track` vmapped over the
-    sequences.
+    :func:`fit_batch` shards images: :func:`jaxpose.tracking.track_batched` on each
+    device's sequences.
 
     Args:
       clouds: ``points (S, T, N, 3)``, ``weights (S, T, N)``: this process's ``S``
@@ -193,7 +193,7 @@ def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh
       The :class:`~jaxpose.tracking.step.TrackFrame` of every frame, leaves ``(S, T, ...)``
       as NumPy arrays, in the order of ``clouds``.
     """
-    from .tracking import TrackConfig, track
+    from .tracking import TrackConfig, track_batched
 
     config = (TrackConfig() if config is None else config).validate().for_skeleton(skeleton)
     mesh = device_mesh() if mesh is None else mesh
@@ -206,8 +206,7 @@ def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh
     def build():
         def local(skel, batched):
             pts, w, key_data = batched
-            one = lambda c, k: track(c, skel, k, config)  # noqa: E731
-            return jax.vmap(one)(Cloud(pts, w), jax.random.wrap_key_data(key_data))
+            return track_batched(Cloud(pts, w), skel, jax.random.wrap_key_data(key_data), config)
         return local
 
     program = _sharded(("track", config), build, mesh)

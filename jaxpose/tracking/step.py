@@ -16,7 +16,8 @@ first key for the global search, the second for the local one; so a frame's glob
 fit is ``fit(cloud, skeleton, split(fold_in(key, t))[0], config.fit)``.
 
 Under ``jax.vmap`` the branches become selects: every frame of a batch of sequences
-pays for the global search (vmap it to evaluate many sequences, not for speed).
+would pay for the global search.  :func:`track_batched` tracks a batch with the
+global search run only on the frames where some sequence of the batch needs it.
 """
 
 from __future__ import annotations
@@ -217,6 +218,30 @@ def track(clouds: Cloud, skeleton: Skeleton, key: jax.Array, config: TrackConfig
     _, frames = jax.lax.scan(lambda s, c: track_step(skeleton, config, s, c), initial_state(skeleton, key, init),
                              clouds)
     return frames
+
+
+def track_batched(clouds: Cloud, skeleton: Skeleton, keys: jax.Array, config: TrackConfig = TrackConfig(),
+                  init: Pose | None = None) -> TrackFrame:
+    """:func:`track` of ``S`` sequences at once (``points (S, T, N, 3)``, ``weights (S, T, N)``,
+    ``keys (S,)``): each sequence's frames equal its own :func:`track` to rounding, leaves
+    ``(S, T, ...)``.  Unlike ``jax.vmap(track)``, whose branches become selects, a frame runs the
+    global search (for the whole batch, its results kept where needed) only when some sequence
+    needs it.  Pure and jit-compatible (``config`` static)."""
+    config = config.validate().for_skeleton(skeleton)
+    states = jax.vmap(lambda k: initial_state(skeleton, k, init))(keys)
+
+    def step(states, cloud):
+        p = jax.vmap(lambda s, c: _local_part(skeleton, config, s, c))(states, cloud)
+        nothing = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (len(p.key), *x.shape)),
+                                         _nan_result(skeleton, config))
+        glob = jax.lax.cond(jnp.any(p.run_global),
+                            lambda: jax.vmap(lambda c, k: _wall0(fit(c, skeleton, k, config.fit)))(cloud, p.key),
+                            lambda: nothing)
+        return jax.vmap(lambda s, q, g: _finish_part(config, s, q, g))(states, p, glob)
+
+    time_major = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), _as_cloud(clouds))
+    _, frames = jax.lax.scan(step, states, time_major)
+    return jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), frames)
 
 
 _local_jit = jax.jit(_local_part, static_argnames="config")
