@@ -79,10 +79,10 @@ class TrackConfig:
     kept: a fit wrong from the start (which the loss test, comparing a frame with its
     predecessors, cannot see) gets another chance.  Such a frame costs a global fit
     (0: never, the default; docs/tracking.md, "Rechecks")."""
-    recheck_margin: float = 0.0
+    recheck_margin: float = 0.075
     """A recheck's global fit replaces the tracked one only when it costs less than
     ``1 - recheck_margin`` times as much: a slightly cheaper global fit is as often a
-    wrong pose the objective prefers as a better one (docs/tracking.md, "Rechecks")."""
+    wrong pose the objective prefers as a better one (docs/tracking.md, "The recheck's margin")."""
 
     def validate(self) -> "TrackConfig":
         """Raise :class:`ConfigError` naming the first impossible setting; return ``self``."""
