@@ -209,10 +209,11 @@ def track(clouds: Cloud, skeleton: Skeleton, key: jax.Array, config: TrackConfig
     pose to track frame 0 from instead).  Returns every frame's :class:`TrackFrame`,
     stacked along T.
 
-    Pure and jit-compatible (``config`` static); vmappable over sequences and keys::
+    Pure and jit-compatible (``config`` static); vmappable over sequences and keys, though
+    under ``vmap`` every frame pays for the global search: :func:`track_batched` does not::
 
         track_jit = jax.jit(track, static_argnames="config")
-        frames = jax.vmap(track_jit, in_axes=(0, None, 0, None))(clouds, skel, keys, config)
+        frames = track_jit(clouds, skel, key, config)
     """
     config = config.validate().for_skeleton(skeleton)
     _, frames = jax.lax.scan(lambda s, c: track_step(skeleton, config, s, c), initial_state(skeleton, key, init),
