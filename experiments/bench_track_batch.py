@@ -26,7 +26,7 @@ import jax
 import numpy as np
 from machine import machine_info
 from outputs import log, rel, write_json
-from track_table import clouds_of, score, sequences
+from track_table import clouds_of, score
 
 import jaxpose as jp
 from jaxpose import sequences as S
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     ap.add_argument("--vmap", action="store_true", help="also jax.vmap(track) (slow: a global search every frame)")
     ap.add_argument("--out", default=OUT)
     args = ap.parse_args(argv)
-    skel, _ = sequences(args.model, args.seed, 2)
+    skel = jp.load_skeleton(args.model)
     make = S.spider_sequence if args.model == "spider" else S.humanoid_sequence
     seqs = [make(skel, seed=args.seed, frames=args.frames, index=i) for i in range(args.sequences)]
     clouds = [clouds_of(s) for s in seqs]

@@ -122,8 +122,8 @@ def track_config_from_args(args):
     fit = config_from_args(args)
     cfg = TrackConfig(fit=fit, population=args.track_population, generations=args.track_generations,
                       refine_steps=args.track_refine_steps, sweep_limbs=args.track_sweep,
-                      recheck_every=args.track_recheck,
-                      recheck_margin=args.track_recheck_margin, min_points=args.min_points, loss_ratio=args.loss_ratio)
+                      recheck_every=args.track_recheck, recheck_margin=args.track_recheck_margin,
+                      min_points=args.min_points, loss_ratio=args.loss_ratio)
     try:
         return cfg.validate()
     except ConfigError as e:
