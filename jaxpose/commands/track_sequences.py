@@ -2,8 +2,8 @@
 
 Every sequence (a folder of frames, or one ``(T, H, W)`` ``.npy`` stack) is read as
 ``jaxpose track`` reads its ``INPUT``; then all of them go through
-:func:`jaxpose.parallel.track_batch`: :func:`jaxpose.tracking.track` (one
-``lax.scan`` over the frames) vmapped over the sequences, one compiled program
+:func:`jaxpose.parallel.track_batch`: :func:`jaxpose.tracking.track_batched` (one
+``lax.scan`` over the frames of a device's sequences), one compiled program
 sharded over the first ``--devices`` devices.  A shorter sequence is padded with
 empty frames (weight 0: the tracker calls them lost), and only its real frames
 are written.  Each sequence's results go to ``DIR/<sequence stem>/``, the files
