@@ -176,7 +176,8 @@ def fit_batch(clouds: Cloud, skeleton: Skeleton, keys, config: FitConfig = FitCo
     return res._replace(wall_time=np.full(len(points), time.perf_counter() - t0, np.float32))
 
 
-def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh | None = None):
+def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh | None = None,
+                chunk: int | None = None, progress=None):
     """Track several sequences at once, sharded over the devices of ``mesh`` as
     :func:`fit_batch` shards images: :func:`jaxpose.tracking.track_batched` on each
     device's sequences.
@@ -188,12 +189,17 @@ def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh
       keys: ``(S,)`` random keys, or one key for every sequence.
       config: a :class:`~jaxpose.tracking.TrackConfig` (default ``TrackConfig()``).
       mesh: as for :func:`fit_batch`.
+      chunk: frames per call of the compiled program (default: all of them in one): the
+        sequences' states carry from one call to the next
+        (:func:`~jaxpose.tracking.track_batched_from`), the last chunk padded with
+        empty frames.
+      progress: ``progress(frames done, T)``, called after each chunk.
 
     Returns:
       The :class:`~jaxpose.tracking.step.TrackFrame` of every frame, leaves ``(S, T, ...)``
       as NumPy arrays, in the order of ``clouds``.
     """
-    from .tracking import TrackConfig, track_batched
+    from .tracking import TrackConfig, TrackState, initial_state, track_batched, track_batched_from
 
     config = (TrackConfig() if config is None else config).validate().for_skeleton(skeleton)
     mesh = device_mesh() if mesh is None else mesh
@@ -202,15 +208,43 @@ def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh
     if points.ndim != 4 or points.shape[3] != 3 or weights.shape != points.shape[:3]:
         raise ConfigError(f"track_batch: sequences of shape (S, T, N, 3) and weights (S, T, N), got "
                           f"{points.shape} and {weights.shape}")
+    if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1):
+        raise ConfigError(f"track_batch: chunk must be a whole number >= 1, got {chunk!r}")
+    key_rows, T = _key_rows(keys, len(points)), points.shape[1]
+    if chunk is None or chunk >= T:
+        def build():
+            def local(skel, batched):
+                pts, w, key_data = batched
+                return track_batched(Cloud(pts, w), skel, jax.random.wrap_key_data(key_data), config)
+            return local
 
-    def build():
-        def local(skel, batched):
-            pts, w, key_data = batched
-            return track_batched(Cloud(pts, w), skel, jax.random.wrap_key_data(key_data), config)
+        frames = _run(_sharded(("track", config), build, mesh), mesh, skeleton, [points, weights, key_rows])
+        if progress is not None:
+            progress(T, T)
+        return frames
+
+    def build_from():
+        def local(skel, batched):  # a state's key travels as its raw data
+            pts, w, *leaves = batched
+            state = TrackState(*leaves[:5], jax.random.wrap_key_data(leaves[5]), leaves[6])
+            state, frames = track_batched_from(state, Cloud(pts, w), skel, config)
+            return (*state[:5], jax.random.key_data(state.key), state.last_global), frames
         return local
 
-    program = _sharded(("track", config), build, mesh)
-    return _run(program, mesh, skeleton, [points, weights, _key_rows(keys, len(points))])
+    program = _sharded(("track_from", config), build_from, mesh)
+    start = jax.vmap(lambda k: initial_state(skeleton, k))(jax.random.wrap_key_data(key_rows))
+    state = [np.asarray(x) for x in (*start[:5], jax.random.key_data(start.key), start.last_global)]
+    parts = []
+    for t0 in range(0, T, chunk):
+        n = min(chunk, T - t0)
+        pad = ((0, 0), (0, chunk - n))  # empty frames: lost, and never returned
+        pts = np.pad(points[:, t0:t0 + n], pad + ((0, 0), (0, 0)))
+        w = np.pad(weights[:, t0:t0 + n], pad + ((0, 0),))
+        state, frames = _run(program, mesh, skeleton, [pts, w, *state])
+        parts.append(jax.tree_util.tree_map(lambda x: x[:, :n], frames))  # noqa: B023 - used at once
+        if progress is not None:
+            progress(t0 + n, T)
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, 1), *parts)
 
 
 def _island_shardings(mesh: Mesh, state, islands: int):

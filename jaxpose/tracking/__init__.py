@@ -9,7 +9,8 @@ See docs/tracking.md.
 from .config import TrackConfig
 from .local import local_fit
 from .step import (GLOBAL, LOST, MODES, TRACKED, TrackFrame, Tracker, TrackState, initial_state, track, track_batched,
-                   track_step)
+                   track_batched_from, track_step)
 
 __all__ = ["GLOBAL", "LOST", "MODES", "TRACKED", "TrackConfig", "TrackFrame", "TrackState", "Tracker",
-           "initial_state", "local_fit", "track", "track_batched", "track_step"]
+           "initial_state", "local_fit", "track", "track_batched", "track_batched_from",
+           "track_step"]

@@ -228,8 +228,16 @@ def track_batched(clouds: Cloud, skeleton: Skeleton, keys: jax.Array, config: Tr
     ``(S, T, ...)``.  Unlike ``jax.vmap(track)``, whose branches become selects, a frame runs the
     global search (for the whole batch, its results kept where needed) only when some sequence
     needs it.  Pure and jit-compatible (``config`` static)."""
-    config = config.validate().for_skeleton(skeleton)
     states = jax.vmap(lambda k: initial_state(skeleton, k, init))(keys)
+    return track_batched_from(states, clouds, skeleton, config)[1]
+
+
+def track_batched_from(states: TrackState, clouds: Cloud, skeleton: Skeleton,
+                       config: TrackConfig = TrackConfig()) -> tuple[TrackState, TrackFrame]:
+    """:func:`track_batched` from the states ``(S,)`` its sequences reached (``initial_state``
+    vmapped over keys, or a previous call's): ``(the states after these frames, their frames)``,
+    so that a batch can run a few frames at a time with the same results."""
+    config = config.validate().for_skeleton(skeleton)
 
     def step(states, cloud):
         p = jax.vmap(lambda s, c: _local_part(skeleton, config, s, c))(states, cloud)
@@ -241,8 +249,8 @@ def track_batched(clouds: Cloud, skeleton: Skeleton, keys: jax.Array, config: Tr
         return jax.vmap(lambda s, q, g: _finish_part(config, s, q, g))(states, p, glob)
 
     time_major = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), _as_cloud(clouds))
-    _, frames = jax.lax.scan(step, states, time_major)
-    return jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), frames)
+    states, frames = jax.lax.scan(step, states, time_major)
+    return states, jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), frames)
 
 
 _local_jit = jax.jit(_local_part, static_argnames="config")

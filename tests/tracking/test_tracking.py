@@ -364,6 +364,21 @@ def test_track_batched_equals_each_sequence(skel, two_sequences):
     _assert_each_sequence(batch, singles)
 
 
+def test_track_batch_in_chunks_equals_each_sequence(skel, two_sequences):
+    """``parallel.track_batch`` three frames at a time (the states carried from call to call, the
+    last chunk of two padded with empty frames) tracks each sequence as it is tracked alone, and
+    reports its progress after every chunk."""
+    from jaxpose.parallel import device_mesh, track_batch
+
+    both, keys, singles = two_sequences
+    seen = []
+    batch = track_batch(both, skel, keys, CFG, device_mesh(1), chunk=3, progress=lambda *a: seen.append(a))
+    assert seen == [(3, T + 2), (6, T + 2), (T + 2, T + 2)]
+    _assert_each_sequence(batch, singles)
+    with pytest.raises(jp.ConfigError, match="chunk must be a whole number >= 1, got 0"):
+        track_batch(both, skel, keys, CFG, device_mesh(1), chunk=0)
+
+
 @pytest.mark.slow  # a fourth compile of the whole search (about 25 s on 2 cores)
 def test_track_under_vmap_equals_each_sequence(skel, two_sequences):
     both, keys, singles = two_sequences
