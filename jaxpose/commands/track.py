@@ -5,14 +5,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import sys
 
 import numpy as np
 
 from ..errors import ConfigError, DepthError
 from ..objective import ObjectiveConfig
 from ..search import FitConfig
-from .progress import check_output_path
+from .progress import FrameBar, check_output_path
 from .robot_options import add_max_capsules, check_max_capsules, check_robot_option
 
 FRAME_EXTENSIONS = (".png", ".npy", ".ply", ".pcd", ".xyz")  # the files a folder input contributes
@@ -386,30 +385,6 @@ def check_video(path: str) -> None:
 
 
 # --------------------------------------------------------------------------- progress
-
-
-class FrameBar:
-    """``[####----] frame 12/90  tracked  48.3 fps  (re-inits 0, lost 0)`` on one line of stderr;
-    silent when stderr is not a terminal or when ``quiet``."""
-
-    def __init__(self, total: int, quiet: bool = False, stream=None, width: int = 30):
-        self.total, self.width = total, width
-        self.stream = stream or sys.stderr
-        self.enabled = not quiet and hasattr(self.stream, "isatty") and self.stream.isatty()
-        self.shown = False
-
-    def show(self, text: str, done: int) -> None:
-        if not self.enabled:
-            return
-        filled = int(self.width * min(done / max(self.total, 1), 1.0))
-        self.stream.write(f"\r[{'#' * filled}{'-' * (self.width - filled)}] {text}\x1b[K")
-        self.stream.flush()
-        self.shown = True
-
-    def close(self) -> None:
-        if self.enabled and self.shown:
-            self.stream.write("\n")
-            self.stream.flush()
 
 
 def _fps_text(times: list[float]) -> str:

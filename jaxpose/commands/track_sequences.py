@@ -25,9 +25,10 @@ import time
 import numpy as np
 
 from ..errors import ConfigError
-from .progress import check_output_path
+from .progress import FrameBar, check_output_path
 
 # summary()'s times of single frames, which a scan does not measure (null here)
+CHUNK = 10  # frames per call of the batch's program: the progress bar moves every CHUNK frames
 FRAME_TIMES = ("fps", "median_frame_seconds", "p90_frame_seconds", "first_frame_seconds", "global_median_seconds")
 COMPILE_EVENTS = ("/jax/core/compile/jaxpr_trace_duration", "/jax/core/compile/jaxpr_to_mlir_module_duration",
                   "/jax/core/compile/backend_compile_duration")
@@ -182,11 +183,19 @@ def run_sequences(args: argparse.Namespace) -> int:
         lengths = sorted({len(s.frames) for s in seqs})
         span = f"{T} frames each" if len(lengths) == 1 else f"{lengths[0]} to {T} frames (padded to {T})"
         print(f"{_count(len(seqs), 'sequence')} of {span} on {devices} {platform} device(s): compiling and running one "
-              "program (no progress until it ends)", flush=True)
+              "program", flush=True)
+    bar = FrameBar(T, args.quiet)
     t0 = time.perf_counter()
+
+    def progress(done: int, total: int) -> None:
+        rate = done * len(seqs) / max(time.perf_counter() - t0, 1e-9)
+        bar.show(f"frame {done}/{total} of {_count(len(seqs), 'sequence')}  {rate:.1f} frames/s (with compilation)",
+                 done)
+
     with compile_seconds() as compiled:
-        frames = track_batch(clouds, skel, jax.random.key(args.seed), config, mesh)
+        frames = track_batch(clouds, skel, jax.random.key(args.seed), config, mesh, chunk=CHUNK, progress=progress)
     wall = time.perf_counter() - t0
+    bar.close()
     batch = {"sequences": len(seqs), "devices": devices, "processes": 1, "frames": T, "wall_seconds": wall,
              "compile_seconds": compiled[0]}
     for i, (s, obs) in enumerate(zip(seqs, observed)):

@@ -159,8 +159,7 @@ def test_two_devices_give_the_results_of_one(runs):
     d, log = runs
     assert log["two"]["rc"] == 0 and log["one"]["rc"] == 0, log["two"]["err"] + log["one"]["err"]
     out = log["two"]["out"].splitlines()
-    assert out[0] == ("2 sequences of 3 to 4 frames (padded to 4) on 2 CPU device(s): compiling and running one "
-                      "program (no progress until it ends)")
+    assert out[0] == "2 sequences of 3 to 4 frames (padded to 4) on 2 CPU device(s): compiling and running one program"
     assert out[1].startswith(f"{log['A']}: 4 frames, ") and out[2].startswith(f"{log['B']}: 3 frames, ")
     assert out[3].startswith("tiny: 2 sequences, 7 frames on 2 CPU device(s) in ") and len(out) == 4
     assert log["one"]["out"] == "" and log["one"]["err"] == ""  # --quiet
