@@ -189,17 +189,32 @@ def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh
       keys: ``(S,)`` random keys, or one key for every sequence.
       config: a :class:`~jaxpose.tracking.TrackConfig` (default ``TrackConfig()``).
       mesh: as for :func:`fit_batch`.
-      chunk: frames per call of the compiled program (default: all of them in one): the
-        sequences' states carry from one call to the next
-        (:func:`~jaxpose.tracking.track_batched_from`), the last chunk padded with
-        empty frames.
+      chunk: frames per call of the compiled program (default: all of them in one), as
+        :func:`track_batch_chunks`.
       progress: ``progress(frames done, T)``, called after each chunk.
 
     Returns:
       The :class:`~jaxpose.tracking.step.TrackFrame` of every frame, leaves ``(S, T, ...)``
       as NumPy arrays, in the order of ``clouds``.
     """
-    from .tracking import TrackConfig, TrackState, initial_state, track_batched, track_batched_from
+    parts = []
+    for t0, frames in track_batch_chunks(clouds, skeleton, keys, config, mesh, chunk):
+        parts.append(frames)
+        if progress is not None:
+            progress(t0 + frames.mode.shape[1], np.shape(clouds.points)[1])
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, 1), *parts)
+
+
+def track_batch_chunks(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh | None = None,
+                       chunk: int | None = None):
+    """:func:`track_batch` a chunk of frames at a time: yields ``(t0, frames)``, the
+    :class:`~jaxpose.tracking.step.TrackFrame` of frames ``t0 .. t0 + n`` of every
+    sequence (leaves ``(S, n, ...)``, NumPy), as soon as they are computed, so that a
+    caller can write them and report progress.  One compiled program
+    (:func:`~jaxpose.tracking.track_batched_from` on ``chunk`` frames, default ``T``)
+    runs every chunk; the sequences' states carry from one call to the next, and the
+    last chunk is padded with empty frames (lost, never returned)."""
+    from .tracking import TrackConfig, TrackState, initial_state, track_batched_from
 
     config = (TrackConfig() if config is None else config).validate().for_skeleton(skeleton)
     mesh = device_mesh() if mesh is None else mesh
@@ -211,19 +226,9 @@ def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh
     if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1):
         raise ConfigError(f"track_batch: chunk must be a whole number >= 1, got {chunk!r}")
     key_rows, T = _key_rows(keys, len(points)), points.shape[1]
-    if chunk is None or chunk >= T:
-        def build():
-            def local(skel, batched):
-                pts, w, key_data = batched
-                return track_batched(Cloud(pts, w), skel, jax.random.wrap_key_data(key_data), config)
-            return local
+    chunk = T if chunk is None else min(chunk, T)
 
-        frames = _run(_sharded(("track", config), build, mesh), mesh, skeleton, [points, weights, key_rows])
-        if progress is not None:
-            progress(T, T)
-        return frames
-
-    def build_from():
+    def build():
         def local(skel, batched):  # a state's key travels as its raw data
             pts, w, *leaves = batched
             state = TrackState(*leaves[:5], jax.random.wrap_key_data(leaves[5]), leaves[6])
@@ -231,20 +236,16 @@ def track_batch(clouds: Cloud, skeleton: Skeleton, keys, config=None, mesh: Mesh
             return (*state[:5], jax.random.key_data(state.key), state.last_global), frames
         return local
 
-    program = _sharded(("track_from", config), build_from, mesh)
+    program = _sharded(("track", config), build, mesh)
     start = jax.vmap(lambda k: initial_state(skeleton, k))(jax.random.wrap_key_data(key_rows))
     state = [np.asarray(x) for x in (*start[:5], jax.random.key_data(start.key), start.last_global)]
-    parts = []
     for t0 in range(0, T, chunk):
         n = min(chunk, T - t0)
         pad = ((0, 0), (0, chunk - n))  # empty frames: lost, and never returned
         pts = np.pad(points[:, t0:t0 + n], pad + ((0, 0), (0, 0)))
         w = np.pad(weights[:, t0:t0 + n], pad + ((0, 0),))
         state, frames = _run(program, mesh, skeleton, [pts, w, *state])
-        parts.append(jax.tree_util.tree_map(lambda x: x[:, :n], frames))  # noqa: B023 - used at once
-        if progress is not None:
-            progress(t0 + n, T)
-    return jax.tree_util.tree_map(lambda *xs: np.concatenate(xs, 1), *parts)
+        yield t0, jax.tree_util.tree_map(lambda x: x[:, :n], frames)  # noqa: B023 - used at once
 
 
 def _island_shardings(mesh: Mesh, state, islands: int):
@@ -333,4 +334,5 @@ def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitCo
     return results[0] if len(results) == 1 else cheapest(results)
 
 
-__all__ = ["AXIS", "device_mesh", "fit_batch", "fit_islands", "local_devices", "padded_size", "track_batch"]
+__all__ = ["AXIS", "device_mesh", "fit_batch", "fit_islands", "local_devices", "padded_size", "track_batch",
+           "track_batch_chunks"]

@@ -4,14 +4,17 @@ Every sequence (a folder of frames, or one ``(T, H, W)`` ``.npy`` stack) is read
 ``jaxpose track`` reads its ``INPUT``; then all of them go through
 :func:`jaxpose.parallel.track_batch`: :func:`jaxpose.tracking.track_batched` (one
 ``lax.scan`` over the frames of a device's sequences), one compiled program
-sharded over the first ``--devices`` devices.  A shorter sequence is padded with
+sharded over the first ``--devices`` devices, ``CHUNK`` frames a call
+(:func:`jaxpose.parallel.track_batch_chunks`).  A shorter sequence is padded with
 empty frames (weight 0: the tracker calls them lost), and only its real frames
 are written.  Each sequence's results go to ``DIR/<sequence stem>/``, the files
-``jaxpose track`` writes for one sequence.
+``jaxpose track`` writes for one sequence; a chunk's frames are written as soon
+as it is computed, so Ctrl-C keeps them (and their ``track.json``, marked
+``interrupted``).
 
-A scan reports no time per frame: each frame's ``wall_seconds`` is ``null``, and the
-batch's wall time and compilation time are recorded under ``summary.batch``
-(and ``timing.batch`` of each frame's document; docs/result_json.md).
+A scan reports no time per frame: each frame's ``wall_seconds`` is ``null``; its
+``timing.batch`` records the batch and the chunk's call that computed it, and
+``summary.batch`` the batch's wall time and compilation time (docs/result_json.md).
 """
 
 from __future__ import annotations
@@ -126,12 +129,13 @@ def compile_seconds():
         jax.monitoring.unregister_event_duration_listener(listener)
 
 
-def batch_summary(entries: list[dict], batch: dict) -> dict:
+def batch_summary(entries: list[dict], batch: dict, interrupted: bool = False) -> dict:
     """track.json's ``summary`` of one sequence of the batch: the counts of :func:`summary`,
     no time per frame (null), and the batch's times under ``batch``."""
     from .track import summary
 
-    s = summary([{**e, "wall_seconds": 0.0} for e in entries])  # the counts; the times are set to null below
+    # the counts; the times are set to null below
+    s = summary([{**e, "wall_seconds": 0.0} for e in entries], interrupted)
     s.update(dict.fromkeys(FRAME_TIMES))
     s["batch"] = batch
     return s
@@ -148,7 +152,7 @@ def run_sequences(args: argparse.Namespace) -> int:
     from ..io.capsules import MAX_CAPSULES
     from ..io.fit_result import file_sha256
     from ..objective import Cloud
-    from ..parallel import device_mesh, track_batch
+    from ..parallel import device_mesh, track_batch_chunks
     from ..pipeline import load_fit_skeleton, robot_max_capsules
     from ..tracking import MODES
     from .fit import input_options
@@ -185,43 +189,58 @@ def run_sequences(args: argparse.Namespace) -> int:
         print(f"{_count(len(seqs), 'sequence')} of {span} on {devices} {platform} device(s): compiling and running one "
               "program", flush=True)
     bar = FrameBar(T, args.quiet)
-    t0 = time.perf_counter()
-
-    def progress(done: int, total: int) -> None:
-        rate = done * len(seqs) / max(time.perf_counter() - t0, 1e-9)
-        bar.show(f"frame {done}/{total} of {_count(len(seqs), 'sequence')}  {rate:.1f} frames/s (with compilation)",
-                 done)
-
-    with compile_seconds() as compiled:
-        frames = track_batch(clouds, skel, jax.random.key(args.seed), config, mesh, chunk=CHUNK, progress=progress)
-    wall = time.perf_counter() - t0
-    bar.close()
-    batch = {"sequences": len(seqs), "devices": devices, "processes": 1, "frames": T, "wall_seconds": wall,
-             "compile_seconds": compiled[0]}
-    for i, (s, obs) in enumerate(zip(seqs, observed)):
-        folder = os.path.join(args.out_dir, s.name)
-        os.makedirs(folder, exist_ok=True)
-        stack_sha = file_sha256(s.frames[0].source) if s.stack is not None else None
-        entries = []
-        for t, (f, (k, cloud, note)) in enumerate(zip(s.frames, obs)):
-            result = jax.tree_util.tree_map(lambda x: x[i, t], frames.result)  # noqa: B023 - used at once
-            mode = MODES[int(frames.mode[i, t])]
-            record = _input_record(f, options, k, cloud, stack_sha)
-            doc = frame_document(skel, skel_file, result, mode, config, args.seed, record, t, cloud, note)
-            doc["skeleton"]["search_lengths"] = bool(args.search_lengths)
-            doc["skeleton"]["max_capsules"] = capsules
-            doc["timing"] = {"wall_seconds": None, "batch": batch}
-            write_json(os.path.join(folder, f.name + ".json"), doc)
-            entries.append({"input": f.source if f.index is None else f.name,  # the path as given
-                            "frame": t, "mode": mode, "cost": doc["cost"], "wall_seconds": None})
-        summ = batch_summary(entries, batch)
-        write_json(os.path.join(folder, "track.json"), {"skeleton": skel.name, "frames": entries, "summary": summ})
-        if not args.quiet:
-            print(f"{s.source}: {summ['frames']} frames, {summ['reinitialisations']} re-initialisations, "
-                  f"{summ['lost_frames']} lost -> {folder}", flush=True)
+    run = {"sequences": len(seqs), "devices": devices, "processes": 1, "frames": T}
+    stack_sha = [file_sha256(s.frames[0].source) if s.stack is not None else None for s in seqs]
+    entries: list[list[dict]] = [[] for _ in seqs]
+    chunks = track_batch_chunks(clouds, skel, jax.random.key(args.seed), config, mesh, CHUNK)
+    compiled, interrupted, t0 = 0.0, True, time.perf_counter()
+    try:
+        while True:
+            t_call = time.perf_counter()
+            with compile_seconds() as seconds:
+                item = next(chunks, None)
+            compiled += seconds[0]
+            if item is None:
+                break
+            c0, frames = item
+            n = int(frames.mode.shape[1])
+            timing = {"wall_seconds": None, "batch": {**run, "chunk_frames": [c0, c0 + n],
+                                                      "chunk_seconds": time.perf_counter() - t_call}}
+            # each chunk's frames written at once: Ctrl-C later keeps them (as jaxpose track does)
+            for i, (s, obs) in enumerate(zip(seqs, observed)):
+                folder = os.path.join(args.out_dir, s.name)
+                os.makedirs(folder, exist_ok=True)
+                for t in range(c0, min(c0 + n, len(s.frames))):
+                    f, (k, cloud, note) = s.frames[t], obs[t]
+                    result = jax.tree_util.tree_map(lambda x: x[i, t - c0], frames.result)  # noqa: B023
+                    mode = MODES[int(frames.mode[i, t - c0])]
+                    record = _input_record(f, options, k, cloud, stack_sha[i])
+                    doc = frame_document(skel, skel_file, result, mode, config, args.seed, record, t, cloud, note)
+                    doc["skeleton"]["search_lengths"] = bool(args.search_lengths)
+                    doc["skeleton"]["max_capsules"] = capsules
+                    doc["timing"] = timing
+                    write_json(os.path.join(folder, f.name + ".json"), doc)
+                    entries[i].append({"input": f.source if f.index is None else f.name,  # the path as given
+                                       "frame": t, "mode": mode, "cost": doc["cost"], "wall_seconds": None})
+            rate = (c0 + n) * len(seqs) / max(time.perf_counter() - t0, 1e-9)
+            bar.show(f"frame {c0 + n}/{T} of {_count(len(seqs), 'sequence')}  {rate:.1f} frames/s "
+                     "(with compilation)", c0 + n)
+        interrupted = False
+    finally:
+        bar.close()
+        wall = time.perf_counter() - t0
+        batch = {**run, "wall_seconds": wall, "compile_seconds": compiled}
+        for s, ents in zip(seqs, entries):  # also after Ctrl-C: the frames written so far and their summary
+            if ents:
+                summ = batch_summary(ents, batch, interrupted)
+                write_json(os.path.join(args.out_dir, s.name, "track.json"),
+                           {"skeleton": skel.name, "frames": ents, "summary": summ})
+                if not args.quiet and not interrupted:
+                    print(f"{s.source}: {summ['frames']} frames, {summ['reinitialisations']} re-initialisations, "
+                          f"{summ['lost_frames']} lost -> {os.path.join(args.out_dir, s.name)}", flush=True)
     if not args.quiet:
         print(f"{skel.name}: {_count(len(seqs), 'sequence')}, {sum(len(s.frames) for s in seqs)} frames on {devices} "
-              f"{platform} device(s) in {wall:.1f} s ({compiled[0]:.1f} s compiling) -> {args.out_dir}", flush=True)
+              f"{platform} device(s) in {wall:.1f} s ({compiled:.1f} s compiling) -> {args.out_dir}", flush=True)
     return 0
 
 

@@ -86,11 +86,11 @@ def run(name, *argv):
         rc = main(["track", *tiny, "--out-dir", f"{d}/{name}", *argv])
     log[name] = {"rc": rc, "out": out.getvalue(), "err": err.getvalue(), "written": sorted(os.listdir(f"{d}/{name}"))}
 
-real = par.track_batch
+real, real_chunks = par.track_batch, par.track_batch_chunks
 def spy(*a, **kw):
     log["calls"] += 1
-    return real(*a, **kw)
-par.track_batch = spy
+    return real_chunks(*a, **kw)
+par.track_batch_chunks = spy
 both = ["--sequences", A, B]
 run("input_and_sequences", frames[0], *both)
 run("video", *both, "--video", f"{d}/v.gif")
@@ -104,6 +104,16 @@ run("bad_frame", "--sequences", A, f"{d}/badseq")
 log["refused_calls"] = log["calls"]
 run("two", *both, "--devices", "2")
 run("one", *both, "--devices", "1", "--quiet")
+
+import jaxpose.commands.track_sequences as ts
+chunk_size = ts.CHUNK
+def stopped(*a, **kw):  # Ctrl-C while the second chunk of 2 frames runs
+    chunks = real_chunks(*a, **kw)
+    yield next(chunks)
+    raise KeyboardInterrupt
+par.track_batch_chunks, ts.CHUNK = stopped, 2
+run("interrupted", *both, "--devices", "1")
+par.track_batch_chunks, ts.CHUNK = real_chunks, chunk_size
 
 # the library on the same clouds, read by fit's reader (PNG files) and by depth_to_cloud (the stack)
 from jaxpose.camera import depth_to_cloud
@@ -194,7 +204,12 @@ def test_each_sequence_holds_one_sequences_files(runs):
             assert entry["frame"] == doc["frame"] == t and entry["mode"] == doc["tracking"]
             assert entry["cost"] == doc["cost"] and entry["wall_seconds"] is None
             assert entry["input"] == (f"{log['A']}/f{t:03d}.png" if seq == "A" else f"B_{t:05d}")
-            assert doc["schema"] == 1 and doc["timing"] == {"wall_seconds": None, "batch": track["summary"]["batch"]}
+            assert doc["schema"] == 1 and doc["timing"]["wall_seconds"] is None
+            chunk = doc["timing"]["batch"]
+            assert chunk == {**{k: track["summary"]["batch"][k] for k in ("sequences", "devices", "processes",
+                                                                           "frames")},
+                             "chunk_frames": [0, 4], "chunk_seconds": chunk["chunk_seconds"]}
+            assert 0 < chunk["chunk_seconds"] <= track["summary"]["batch"]["wall_seconds"]
             assert len(doc["points"]) == doc["input"]["points_used"] > 0
             assert doc["input"]["depth"] == (f"f{t:03d}.png" if seq == "A" else "B.npy")
             if seq == "B":
@@ -240,6 +255,27 @@ def test_the_shorter_sequence_stops_at_its_length(runs):
     assert len(track["frames"]) == 3 and track["summary"]["frames"] == 3 and track["summary"]["batch"]["frames"] == 4
     assert not (d / "two" / "B" / "B_00003.json").exists()
     assert "lost" not in [f["mode"] for f in track["frames"]]  # the padding frame is not reported
+
+
+def test_ctrl_c_keeps_the_chunks_written(runs):
+    """Ctrl-C during the second chunk (2 frames a call here): exit 130, each sequence keeps its
+    first chunk's frames and a track.json of them marked interrupted, equal to the full run's."""
+    d, log = runs
+    r = log["interrupted"]
+    assert r["rc"] == 130 and "interrupted" in r["err"], r["err"]
+    assert r["written"] == ["A", "B"]
+    for seq in ("A", "B"):
+        assert sorted(p.name for p in (d / "interrupted" / seq).iterdir()) == \
+            sorted([n + ".json" for n in NAMES[seq][:2]] + ["track.json"])
+        track, docs = sequence(d, "interrupted", seq)
+        full, full_docs = sequence(d, "one", seq)
+        assert track["summary"]["interrupted"] is True and track["summary"]["frames"] == 2
+        assert "interrupted" not in full["summary"]
+        assert [doc["timing"]["batch"]["chunk_frames"] for doc in docs] == [[0, 2], [0, 2]]
+        for a, b in zip(docs, full_docs):  # the chunked program's frames: those of the whole batch
+            assert a["tracking"] == b["tracking"]
+            if a["cost"] is not None:
+                np.testing.assert_allclose(a["cost"], b["cost"], rtol=1e-5)
 
 
 @pytest.mark.parametrize("name, message", [
