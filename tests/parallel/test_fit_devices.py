@@ -101,7 +101,8 @@ def test_two_devices_give_the_results_of_one(runs):
 
 def test_resume_skips_what_is_written(runs):
     d, log = runs
-    assert log["resume_nothing"]["rc"] == 0 and "3 of 3 results already written, skipped" in log["resume_nothing"]["out"]
+    nothing = log["resume_nothing"]
+    assert nothing["rc"] == 0 and "3 of 3 results already written, skipped" in nothing["out"]
     assert "batch" not in log["resume_nothing"]["out"].split("skipped", 1)[1].replace("images per batch", "")
     assert log["resume_one"]["rc"] == 0 and "2 of 3 results already written" in log["resume_one"]["out"]
     assert "d2.png: cost" in log["resume_one"]["out"] and "d1.png: cost" not in log["resume_one"]["out"]
