@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import ConfigError
 
 
-def _agree(ok: bool, what: str) -> None:
+def agree(ok: bool, what: str) -> None:
     """Every process learns whether every process succeeded at ``what`` (so that all
     stop together instead of waiting for the others' next program)."""
     if jax.process_count() == 1:
@@ -33,7 +33,7 @@ def _agree(ok: bool, what: str) -> None:
         raise ConfigError(f"{what} failed on process {bad} (its error is in its own output)")
 
 
-def _largest(n: int) -> int:
+def largest(n: int) -> int:
     if jax.process_count() == 1:
         return n
     from jax.experimental import multihost_utils
@@ -82,14 +82,14 @@ def run_batches(args, jobs, skel, skel_file, capsules, config, per_input) -> int
         ok = True
     finally:
         if not ok and P > 1:  # the others learn it before they wait for this process's programs
-            _agree(False, "reading the inputs")
-    _agree(True, "reading the inputs")
+            agree(False, "reading the inputs")
+    agree(True, "reading the inputs")
     mesh = device_mesh(args.devices)
     local = [d for d in mesh.devices.flat if d.process_index == jax.process_index()]
     from .fit import BATCH
 
     size = (args.batch or BATCH) * len(local)
-    batches = -(-_largest(len(todo)) // size)
+    batches = -(-largest(len(todo)) // size)
     if not quiet and jax.process_index() == 0:
         print(f"{len(jobs)} inputs on {mesh.devices.size} {local[0].platform.upper()} device(s)"
               f"{f' of {P} processes' if P > 1 else ''}, {size} images per batch and process", flush=True)
@@ -142,4 +142,4 @@ def run_batches(args, jobs, skel, skel_file, capsules, config, per_input) -> int
     return 0
 
 
-__all__ = ["run_batches"]
+__all__ = ["agree", "largest", "run_batches"]

@@ -37,7 +37,10 @@ def register(sub) -> None:
                         "with empty frames), each written to DIR/<SEQ stem>/ as one sequence's files")
     p.add_argument("--devices", type=int, metavar="N",
                    help="with --sequences: shard the sequences over the first N devices of this machine "
-                        "(default: every device)")
+                        "(default: every device; with several processes, N of each)")
+    p.add_argument("--resume", action="store_true",
+                   help="with --sequences: skip the sequences whose track.json is already written (and not "
+                        "interrupted)")
     p.add_argument("--skeleton", required=True, help="skeleton file (.toml/.json/.urdf/.xml) or a shipped name")
     p.add_argument("--out-dir", required=True, metavar="DIR",
                    help="write DIR/<input name>.json per frame (a stack: DIR/<stem>_<frame:05d>.json) and "

@@ -12,6 +12,10 @@ are written.  Each sequence's results go to ``DIR/<sequence stem>/``, the files
 as it is computed, so Ctrl-C keeps them (and their ``track.json``, marked
 ``interrupted``).
 
+With several processes (:mod:`jaxpose.distributed`) each process tracks and writes
+every P-th sequence, as ``fit`` shares its inputs; ``--resume`` skips the sequences
+already written.
+
 A scan reports no time per frame: each frame's ``wall_seconds`` is ``null``; its
 ``timing.batch`` records the batch and the chunk's call that computed it, and
 ``summary.batch`` the batch's wall time and compilation time (docs/result_json.md).
@@ -55,6 +59,8 @@ def check_combinations(args) -> None:
         if args.devices is not None:
             raise ConfigError("--devices works with --sequences (one sequence is tracked frame by frame, "
                               "on one device)")
+        if args.resume:
+            raise ConfigError("--resume works with --sequences (it skips the sequences already written)")
         return
     if args.depth:
         raise ConfigError(f"INPUT ({args.depth[0]}) and --sequences exclude each other: give each sequence "
@@ -64,7 +70,7 @@ def check_combinations(args) -> None:
 
 
 def check_devices(devices: int | None) -> None:
-    """``--devices`` within this machine's devices; several processes are not supported here."""
+    """``--devices`` within this machine's devices (and the run joined, with several processes)."""
     import jax
 
     from .. import distributed
@@ -75,8 +81,18 @@ def check_devices(devices: int | None) -> None:
     if devices is not None and devices > jax.local_device_count():
         raise ConfigError(f"--devices must lie within 1 .. {jax.local_device_count()} (this machine's "
                           f"{jax.devices()[0].platform.upper()} devices), got {devices}")
-    if jax.process_count() > 1:
-        raise ConfigError(f"--sequences runs on one process; this run has {jax.process_count()} processes")
+
+
+def finished(folder: str) -> bool:
+    """Whether a sequence's ``track.json`` is written and was not interrupted (``--resume``)."""
+    import json
+
+    try:
+        with open(os.path.join(folder, "track.json")) as f:
+            doc = json.load(f)
+        return isinstance(doc, dict) and not doc.get("summary", {}).get("interrupted", False)
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def expand_sequences(paths: list[str], out_dir: str, depth_scale=None) -> list[Sequence]:
@@ -148,6 +164,7 @@ def _count(n: int, what: str) -> str:
 def run_sequences(args: argparse.Namespace) -> int:
     import jax
 
+    from .. import distributed
     from ..io.atomic import write_json
     from ..io.capsules import MAX_CAPSULES
     from ..io.fit_result import file_sha256
@@ -156,6 +173,7 @@ def run_sequences(args: argparse.Namespace) -> int:
     from ..pipeline import load_fit_skeleton, robot_max_capsules
     from ..tracking import MODES
     from .fit import input_options
+    from .fit_batch import agree, largest
     from .robot_options import check_max_capsules, check_robot_option
     from .track import FrameReader, _empty_cloud, _input_record, frame_document, track_config_from_args
 
@@ -166,30 +184,48 @@ def run_sequences(args: argparse.Namespace) -> int:
     if not os.path.isdir(args.out_dir):
         raise ConfigError(f"--out-dir {args.out_dir}: not a directory")
     check_output_path(os.path.join(args.out_dir, "track.json"), "--out-dir")  # DIR is writable
-    seqs = expand_sequences(args.sequences, args.out_dir, args.depth_scale)
-    every = [f.source for s in seqs for f in (s.frames[:1] if s.stack is not None else s.frames)]  # a stack once
+    every_seq = expand_sequences(args.sequences, args.out_dir, args.depth_scale)
+    every = [f.source for s in every_seq for f in (s.frames[:1] if s.stack is not None else s.frames)]  # a stack once
     options = input_options(argparse.Namespace(**{**vars(args), "depth": every}))
     skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
     capsules = robot_max_capsules(skel_file, MAX_CAPSULES if args.max_capsules is None else args.max_capsules, True)
     config = config.validate().for_skeleton(skel)
-    # every frame of every sequence read and checked before the search
-    readers = [FrameReader(options, s.stack) for s in seqs]
-    observed = [[r.read(f)[1:] for f in s.frames] for r, s in zip(readers, seqs)]
-    T = max(len(s.frames) for s in seqs)
+    P = jax.process_count()
+    who = f"process {jax.process_index()} of {P}: " if P > 1 else ""
+    mine = distributed.share(every_seq)  # every P-th sequence, as fit shares its inputs
+    seqs = [s for s in mine if not (args.resume and finished(os.path.join(args.out_dir, s.name)))]
+    if not args.quiet and len(seqs) < len(mine):
+        print(f"{who}{len(mine) - len(seqs)} of {len(mine)} sequences already written, skipped", flush=True)
+    ok = False
+    try:  # every frame of every sequence read and checked before the search
+        readers = [FrameReader(options, s.stack) for s in seqs]
+        observed = [[r.read(f)[1:] for f in s.frames] for r, s in zip(readers, seqs)]
+        ok = True
+    finally:
+        if not ok and P > 1:  # the others learn it before they wait for this process's programs
+            agree(False, "reading the sequences")
+    agree(True, "reading the sequences")
+    T = largest(max((len(s.frames) for s in seqs), default=0))  # every process scans as many frames
+    if T == 0:
+        if not args.quiet:
+            print(f"{who}every sequence is already written -> {args.out_dir}", flush=True)
+        return 0
     empty = _empty_cloud(options.max_points)
     padded = [[c for _, c, _ in obs] + [empty] * (T - len(obs)) for obs in observed]
-    clouds = Cloud(np.stack([np.stack([np.asarray(c.points, np.float32) for c in p]) for p in padded]),
-                   np.stack([np.stack([np.asarray(c.weights, np.float32) for c in p]) for p in padded]))
+    clouds = Cloud(np.asarray([[np.asarray(c.points, np.float32) for c in p] for p in padded], np.float32)
+                   .reshape(len(seqs), T, options.max_points, 3),
+                   np.asarray([[np.asarray(c.weights, np.float32) for c in p] for p in padded], np.float32)
+                   .reshape(len(seqs), T, options.max_points))
     mesh = device_mesh(args.devices)
     devices = int(mesh.devices.size)
     platform = mesh.devices.flat[0].platform.upper()
-    if not args.quiet:
+    if not args.quiet and seqs:
         lengths = sorted({len(s.frames) for s in seqs})
-        span = f"{T} frames each" if len(lengths) == 1 else f"{lengths[0]} to {T} frames (padded to {T})"
-        print(f"{_count(len(seqs), 'sequence')} of {span} on {devices} {platform} device(s): compiling and running one "
-              "program", flush=True)
+        span = f"{T} frames each" if lengths == [T] else f"{lengths[0]} to {lengths[-1]} frames (padded to {T})"
+        print(f"{who}{_count(len(seqs), 'sequence')} of {span} on {devices} {platform} device(s)"
+              f"{f' of {P} processes' if P > 1 else ''}: compiling and running one program", flush=True)
     bar = FrameBar(T, args.quiet)
-    run = {"sequences": len(seqs), "devices": devices, "processes": 1, "frames": T}
+    run = {"sequences": len(seqs), "devices": devices, "processes": P, "frames": T}
     stack_sha = [file_sha256(s.frames[0].source) if s.stack is not None else None for s in seqs]
     entries: list[list[dict]] = [[] for _ in seqs]
     chunks = track_batch_chunks(clouds, skel, jax.random.key(args.seed), config, mesh, CHUNK)
@@ -236,10 +272,11 @@ def run_sequences(args: argparse.Namespace) -> int:
                 write_json(os.path.join(args.out_dir, s.name, "track.json"),
                            {"skeleton": skel.name, "frames": ents, "summary": summ})
                 if not args.quiet and not interrupted:
-                    print(f"{s.source}: {summ['frames']} frames, {summ['reinitialisations']} re-initialisations, "
+                    print(f"{who}{s.source}: {summ['frames']} frames, {summ['reinitialisations']} re-initialisations, "
                           f"{summ['lost_frames']} lost -> {os.path.join(args.out_dir, s.name)}", flush=True)
     if not args.quiet:
-        print(f"{skel.name}: {_count(len(seqs), 'sequence')}, {sum(len(s.frames) for s in seqs)} frames on {devices} "
+        frames_done = sum(len(s.frames) for s in seqs)
+        print(f"{who}{skel.name}: {_count(len(seqs), 'sequence')}, {frames_done} frames on {devices} "
               f"{platform} device(s) in {wall:.1f} s ({compiled:.1f} s compiling) -> {args.out_dir}", flush=True)
     return 0
 

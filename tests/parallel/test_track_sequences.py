@@ -1,8 +1,10 @@
 """``jaxpose track --sequences`` over several devices: two devices give the results of one,
 the results equal the library's ``parallel.track_batch`` on the same clouds (read here by
 ``fit``'s reader, not the command's), each sequence's folder holds one sequence's files
-(a shorter sequence's stop at its length), and bad options end with one line, write
-nothing and start no search.
+(a shorter sequence's stop at its length), Ctrl-C keeps the chunks written, --resume
+skips the sequences written, two processes joined by jax.distributed give the results
+of one process with two devices, and bad options end with one line, write nothing and
+start no search.
 
 The command runs in a subprocess with two forced host devices (XLA_FLAGS is read when JAX
 starts) and XLA's default settings, every run in that one process.  A three-link skeleton
@@ -97,6 +99,7 @@ run("video", *both, "--video", f"{d}/v.gif")
 run("too_many", *both, "--devices", "3")
 run("no_device", *both, "--devices", "0")
 run("devices_alone", A, "--devices", "1")
+run("resume_alone", A, "--resume")
 run("same_name", "--sequences", A, f"{d}/sub/A")
 run("missing", "--sequences", A, f"{d}/nowhere")
 run("not_a_sequence", "--sequences", A, frames[0])
@@ -114,6 +117,19 @@ def stopped(*a, **kw):  # Ctrl-C while the second chunk of 2 frames runs
 par.track_batch_chunks, ts.CHUNK = stopped, 2
 run("interrupted", *both, "--devices", "1")
 par.track_batch_chunks, ts.CHUNK = real_chunks, chunk_size
+
+def again(name, folder, *argv):  # into a folder written before
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(["track", *tiny, "--out-dir", f"{d}/{folder}", *argv])
+    log[name] = {"rc": rc, "out": out.getvalue(), "err": err.getvalue()}
+
+calls = log["calls"]
+again("resume_done", "one", *both, "--devices", "1", "--resume")
+log["resume_done"]["calls"] = log["calls"] - calls
+shutil.copytree(f"{d}/interrupted", f"{d}/resumed")
+again("resume_interrupted", "resumed", *both, "--devices", "1", "--resume")
+log["tiny"] = tiny
 
 # the library on the same clouds, read by fit's reader (PNG files) and by depth_to_cloud (the stack)
 from jaxpose.camera import depth_to_cloud
@@ -278,12 +294,69 @@ def test_ctrl_c_keeps_the_chunks_written(runs):
                 np.testing.assert_allclose(a["cost"], b["cost"], rtol=1e-5)
 
 
+def test_resume_skips_the_sequences_written_and_redoes_the_interrupted(runs):
+    d, log = runs
+    done = log["resume_done"]
+    assert done["rc"] == 0 and done["calls"] == 0, done["err"]
+    assert done["out"].splitlines() == ["2 of 2 sequences already written, skipped",
+                                        f"every sequence is already written -> {d}/one"]
+    again = log["resume_interrupted"]
+    assert again["rc"] == 0, again["err"]
+    for seq in ("A", "B"):
+        track, docs = sequence(d, "resumed", seq)
+        full, full_docs = sequence(d, "one", seq)
+        assert "interrupted" not in track["summary"] and track["summary"]["frames"] == LENGTHS[seq]
+        assert [doc["cost"] for doc in docs] == [doc["cost"] for doc in full_docs]
+
+
+def test_two_processes_give_the_results_of_one_with_two_devices(runs, tmp_path):
+    """``jaxpose track --sequences A B`` on two processes joined by jax.distributed (one CPU
+    device each, CPU collectives): process 0 tracks A, process 1 B, each writes its own; the
+    results are those of one process with two devices."""
+    from test_distributed import free_port
+
+    d, log = runs
+    port, procs = free_port(), []
+    for pid in range(2):
+        env = forced_devices_env(1)
+        env.update(JAXPOSE_DISTRIBUTED="1", JAX_COORDINATOR_ADDRESS=f"localhost:{port}", JAX_NUM_PROCESSES="2",
+                   JAX_PROCESS_ID=str(pid))
+        argv = [sys.executable, "-m", "jaxpose.cli", "track", *log["tiny"], "--out-dir", str(tmp_path),
+                "--sequences", log["A"], log["B"]]
+        procs.append(subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    outs = []
+    try:
+        for p in procs:
+            out, err = p.communicate(timeout=300)
+            assert p.returncode == 0, err[-3000:]
+            outs.append(out)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+    assert "\nprocess 0 of 2: 1 sequence of 4 frames each on 2 CPU device(s) of 2 processes" in "\n" + outs[0]
+    assert f"process 1 of 2: {log['B']}: 3 frames, " in outs[1]
+    for seq in ("A", "B"):
+        track = json.loads((tmp_path / seq / "track.json").read_text())
+        assert track["summary"]["batch"]["processes"] == 2 and track["summary"]["batch"]["devices"] == 2
+        docs = [json.loads((tmp_path / seq / f"{n}.json").read_text()) for n in NAMES[seq]]
+        _, want = sequence(d, "two", seq)
+        for a, b in zip(docs, want):
+            assert a["tracking"] == b["tracking"]
+            if a["cost"] is None:
+                assert b["cost"] is None
+                continue
+            np.testing.assert_allclose(a["cost"], b["cost"], rtol=1e-6)
+            np.testing.assert_allclose(ends(a), ends(b), atol=1e-5)
+
+
 @pytest.mark.parametrize("name, message", [
     ("input_and_sequences", "INPUT ({d}/render/depth/frame_00000.png) and --sequences exclude each other"),
     ("video", "--video works with one sequence (INPUT ...), not with --sequences"),
     ("too_many", "--devices must lie within 1 .. 2 (this machine's CPU devices), got 3"),
     ("no_device", "--devices must be >= 1, got 0"),
     ("devices_alone", "--devices works with --sequences"),
+    ("resume_alone", "--resume works with --sequences"),
     ("same_name", "sequences {d}/A and {d}/sub/A would both write A/ in --out-dir"),
     ("missing", "--sequences {d}/nowhere: no such folder or file"),
     ("not_a_sequence", "--sequences {d}/render/depth/frame_00000.png: a sequence is a folder of frames or one "
