@@ -226,6 +226,8 @@ def track_batch_chunks(clouds: Cloud, skeleton: Skeleton, keys, config=None, mes
     if chunk is not None and (isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1):
         raise ConfigError(f"track_batch: chunk must be a whole number >= 1, got {chunk!r}")
     key_rows, T = _key_rows(keys, len(points)), points.shape[1]
+    if T == 0:
+        raise ConfigError("track_batch: sequences of at least one frame, got T = 0")
     chunk = T if chunk is None else min(chunk, T)
 
     def build():
@@ -237,15 +239,19 @@ def track_batch_chunks(clouds: Cloud, skeleton: Skeleton, keys, config=None, mes
         return local
 
     program = _sharded(("track", config), build, mesh)
-    start = jax.vmap(lambda k: initial_state(skeleton, k))(jax.random.wrap_key_data(key_rows))
-    state = [np.asarray(x) for x in (*start[:5], jax.random.key_data(start.key), start.last_global)]
-    for t0 in range(0, T, chunk):
-        n = min(chunk, T - t0)
-        pad = ((0, 0), (0, chunk - n))  # empty frames: lost, and never returned
-        pts = np.pad(points[:, t0:t0 + n], pad + ((0, 0), (0, 0)))
-        w = np.pad(weights[:, t0:t0 + n], pad + ((0, 0),))
-        state, frames = _run(program, mesh, skeleton, [pts, w, *state])
-        yield t0, jax.tree_util.tree_map(lambda x: x[:, :n], frames)  # noqa: B023 - used at once
+
+    def chunks():  # the checks above run at the call, the frames as they are asked for
+        start = jax.vmap(lambda k: initial_state(skeleton, k))(jax.random.wrap_key_data(key_rows))
+        state = [np.asarray(x) for x in (*start[:5], jax.random.key_data(start.key), start.last_global)]
+        for t0 in range(0, T, chunk):
+            n = min(chunk, T - t0)
+            pad = ((0, 0), (0, chunk - n))  # empty frames: lost, and never returned
+            pts = np.pad(points[:, t0:t0 + n], pad + ((0, 0), (0, 0)))
+            w = np.pad(weights[:, t0:t0 + n], pad + ((0, 0),))
+            state, frames = _run(program, mesh, skeleton, [pts, w, *state])
+            yield t0, jax.tree_util.tree_map(lambda x: x[:, :n], frames)  # noqa: B023 - used at once
+
+    return chunks()
 
 
 def _island_shardings(mesh: Mesh, state, islands: int):

@@ -106,17 +106,19 @@ run("not_a_sequence", "--sequences", A, frames[0])
 run("bad_frame", "--sequences", A, f"{d}/badseq")
 log["refused_calls"] = log["calls"]
 run("two", *both, "--devices", "2")
+
+# one device, 2 frames a call: the program the Ctrl-C and --resume runs below reuse
+import jaxpose.commands.track_sequences as ts
+ts.CHUNK = 2
 run("one", *both, "--devices", "1", "--quiet")
 
-import jaxpose.commands.track_sequences as ts
-chunk_size = ts.CHUNK
 def stopped(*a, **kw):  # Ctrl-C while the second chunk of 2 frames runs
     chunks = real_chunks(*a, **kw)
     yield next(chunks)
     raise KeyboardInterrupt
-par.track_batch_chunks, ts.CHUNK = stopped, 2
+par.track_batch_chunks = stopped
 run("interrupted", *both, "--devices", "1")
-par.track_batch_chunks, ts.CHUNK = real_chunks, chunk_size
+par.track_batch_chunks = spy
 
 def again(name, folder, *argv):  # into a folder written before
     out, err = io.StringIO(), io.StringIO()
@@ -129,6 +131,7 @@ again("resume_done", "one", *both, "--devices", "1", "--resume")
 log["resume_done"]["calls"] = log["calls"] - calls
 shutil.copytree(f"{d}/interrupted", f"{d}/resumed")
 again("resume_interrupted", "resumed", *both, "--devices", "1", "--resume")
+log["resume_interrupted"]["calls"] = log["calls"] - calls
 log["tiny"] = tiny
 
 # the library on the same clouds, read by fit's reader (PNG files) and by depth_to_cloud (the stack)
@@ -301,7 +304,7 @@ def test_resume_skips_the_sequences_written_and_redoes_the_interrupted(runs):
     assert done["out"].splitlines() == ["2 of 2 sequences already written, skipped",
                                         f"every sequence is already written -> {d}/one"]
     again = log["resume_interrupted"]
-    assert again["rc"] == 0, again["err"]
+    assert again["rc"] == 0 and again["calls"] == 1, again["err"]
     for seq in ("A", "B"):
         track, docs = sequence(d, "resumed", seq)
         full, full_docs = sequence(d, "one", seq)
@@ -309,6 +312,7 @@ def test_resume_skips_the_sequences_written_and_redoes_the_interrupted(runs):
         assert [doc["cost"] for doc in docs] == [doc["cost"] for doc in full_docs]
 
 
+@pytest.mark.slow  # two more processes, each compiling the search (about 30 s on 2 cores)
 def test_two_processes_give_the_results_of_one_with_two_devices(runs, tmp_path):
     """``jaxpose track --sequences A B`` on two processes joined by jax.distributed (one CPU
     device each, CPU collectives): process 0 tracks A, process 1 B, each writes its own; the

@@ -368,7 +368,7 @@ def test_track_batch_in_chunks_equals_each_sequence(skel, two_sequences):
     """``parallel.track_batch`` three frames at a time (the states carried from call to call, the
     last chunk of two padded with empty frames) tracks each sequence as it is tracked alone, and
     reports its progress after every chunk."""
-    from jaxpose.parallel import device_mesh, track_batch
+    from jaxpose.parallel import device_mesh, track_batch, track_batch_chunks
 
     both, keys, singles = two_sequences
     seen = []
@@ -377,6 +377,10 @@ def test_track_batch_in_chunks_equals_each_sequence(skel, two_sequences):
     _assert_each_sequence(batch, singles)
     with pytest.raises(jp.ConfigError, match="chunk must be a whole number >= 1, got 0"):
         track_batch(both, skel, keys, CFG, device_mesh(1), chunk=0)
+    with pytest.raises(jp.ConfigError, match="got 0"):  # at the call, before any frame is asked for
+        track_batch_chunks(both, skel, keys, CFG, device_mesh(1), chunk=0)
+    with pytest.raises(jp.ConfigError, match="at least one frame"):
+        track_batch_chunks(jax.tree_util.tree_map(lambda x: x[:, :0], both), skel, keys, CFG, device_mesh(1))
 
 
 @pytest.mark.slow  # a fourth compile of the whole search (about 25 s on 2 cores)
