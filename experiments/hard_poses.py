@@ -563,9 +563,10 @@ def summary_name(draw: str, config, seed: int = 0) -> str:
     ``diagnosis-seed1``, ...)."""
     from jaxpose.search import FitConfig
 
-    def flat(c):
+    def flat(c):  # generations: only when set (None, the default, is resolved per skeleton)
         d = c.to_dict()
-        return {**{k: v for k, v in d.items() if k not in ("objective", "generations")},
+        return {**{k: v for k, v in d.items() if k not in ("objective", "generations") or
+                   (k == "generations" and v is not None)},
                 **{f"objective.{k}": v for k, v in d["objective"].items()}}
 
     default, now = flat(FitConfig()), flat(config)
