@@ -96,6 +96,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=H.DATA_DIR)
     args = ap.parse_args(argv)
     doc = json.load(open(args.summary))
+    # the search's settings as stored; the objective is today's default (a stored record may name settings of a
+    # variant since removed), so score only records of the default objective
     config = FitConfig(**{k: v for k, v in doc["config"].items() if k not in ("objective",)})
     draw = "reference" if "reference" in os.path.basename(args.summary) else "tuning"
     data, rows = {}, []

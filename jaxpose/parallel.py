@@ -214,7 +214,7 @@ def track_batch_chunks(clouds: Cloud, skeleton: Skeleton, keys, config=None, mes
     (:func:`~jaxpose.tracking.track_batched_from` on ``chunk`` frames, default ``T``)
     runs every chunk; the sequences' states carry from one call to the next, and the
     last chunk is padded with empty frames (lost, never returned)."""
-    from .tracking import TrackConfig, TrackState, initial_state, track_batched_from
+    from .tracking import TrackConfig, initial_state, track_batched_from
 
     config = (TrackConfig() if config is None else config).validate().for_skeleton(skeleton)
     mesh = device_mesh() if mesh is None else mesh
@@ -233,16 +233,15 @@ def track_batch_chunks(clouds: Cloud, skeleton: Skeleton, keys, config=None, mes
     def build():
         def local(skel, batched):  # a state's key travels as its raw data
             pts, w, *leaves = batched
-            state = TrackState(*leaves[:5], jax.random.wrap_key_data(leaves[5]), leaves[6])
-            state, frames = track_batched_from(state, Cloud(pts, w), skel, config)
-            return (*state[:5], jax.random.key_data(state.key), state.last_global), frames
+            state, frames = track_batched_from(_unpack_state(leaves), Cloud(pts, w), skel, config)
+            return _pack_state(state), frames
         return local
 
     program = _sharded(("track", config), build, mesh)
 
     def chunks():  # the checks above run at the call, the frames as they are asked for
         start = jax.vmap(lambda k: initial_state(skeleton, k))(jax.random.wrap_key_data(key_rows))
-        state = [np.asarray(x) for x in (*start[:5], jax.random.key_data(start.key), start.last_global)]
+        state = [np.asarray(x) for x in _pack_state(start)]
         for t0 in range(0, T, chunk):
             n = min(chunk, T - t0)
             pad = ((0, 0), (0, chunk - n))  # empty frames: lost, and never returned
@@ -252,6 +251,18 @@ def track_batch_chunks(clouds: Cloud, skeleton: Skeleton, keys, config=None, mes
             yield t0, jax.tree_util.tree_map(lambda x: x[:, :n], frames)  # noqa: B023 - used at once
 
     return chunks()
+
+
+def _pack_state(state) -> tuple:
+    """A :class:`~jaxpose.tracking.TrackState`'s leaves, its key as raw data (what a sharded program passes)."""
+    return (*state[:5], jax.random.key_data(state.key), state.last_global)
+
+
+def _unpack_state(leaves):
+    """The :class:`~jaxpose.tracking.TrackState` of :func:`_pack_state`'s leaves."""
+    from .tracking import TrackState
+
+    return TrackState(*leaves[:5], jax.random.wrap_key_data(leaves[5]), leaves[6])
 
 
 def _island_shardings(mesh: Mesh, state, islands: int):
