@@ -22,7 +22,7 @@ demo: $(STAMP)
 	$(BIN)/python -m jaxpose.demo --out out/demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 bench: $(STAMP)
 	$(BIN)/python experiments/bench.py
