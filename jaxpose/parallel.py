@@ -82,7 +82,8 @@ def _fit_program(config: FitConfig, mesh: Mesh):
         return local
 
     # the turns' count and window and the restarts are read here, not by the compiled searches (FitConfig.static)
-    return _sharded(("fit", config.static(), config.turns, config.turn_window, config.restarts), build, mesh)
+    return _sharded(("fit", config.static(), config.turns, config.turn_window, config.restarts, config.restart_apart),
+                    build, mesh)
 
 
 def _run(program, mesh: Mesh, replicated, batched: list):
@@ -347,7 +348,7 @@ def fit_islands(cloud: Cloud, skeleton: Skeleton, key, config: FitConfig = FitCo
         return r
 
     # the searches one after another, as Fitter.run runs them
-    results = run_searches(skeleton, config, params, key, search)
+    results = run_searches(skeleton, config, params, key, search, cloud)
     return results[0] if len(results) == 1 else cheapest(results)
 
 

@@ -229,7 +229,7 @@ class Fitter:
             evals += int(res.objective_evaluations) + int(res.gradient_evaluations)
             return res
 
-        run_searches(self.skeleton, self.config, self.params, key, search)
+        run_searches(self.skeleton, self.config, self.params, key, search, cloud)
         res = results[0] if n == 1 else cheapest(results)
         if hypotheses > 1:
             chosen = int(cheapest_index(jnp.stack([r.cost for r in results])))

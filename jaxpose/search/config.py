@@ -169,6 +169,12 @@ class FitConfig:
     """Restarts: the whole fit (the portfolio, then its turn searches) run this many times, each
     time with keys of its own, the cheapest answer of all kept.  More independent search places
     more limbs of hard poses, at that many times the time (docs/search.md, "Restarts")."""
+    restart_apart: float = 0.0
+    """Adaptive restarts (0: off, every restart runs): a restart after the first runs only when
+    the answers so far disagree, the cheapest and the next cheapest lying further apart than
+    this fraction of the cloud's spread (:func:`~jaxpose.search.loop.answers_apart`: link ends
+    matched within symmetry orbits).  Searches that agree have likely found the basin; searches
+    that do not are worth another round (docs/search.md, "Adaptive restarts")."""
     turn_window: float = 0.6
     """Half-width (radians, about each axis) of the turn from its held orientation that each turn search allows."""
     coarse_points: int = 0
@@ -227,6 +233,11 @@ class FitConfig:
             raise ConfigError(f"staged_alternatives must hold fractions in [0, 1], got {self.staged_alternatives!r}")
         require_integer("turns", self.turns, 0)
         require_integer("restarts", self.restarts, 1)
+        if not require_finite("restart_apart", self.restart_apart) >= 0:
+            raise ConfigError(f"restart_apart must be >= 0 (0: every restart runs), got {self.restart_apart!r}")
+        if self.restart_apart and self.round_searches < 2:
+            raise ConfigError("restart_apart compares a round's answers: it needs two searches a round "
+                              "(staged_alternatives or turns), got one")
         if self.turns > 3:
             raise ConfigError(f"turns must be 0-3 (one per principal axis), got {self.turns}")
         within("turn_window", 0.0, float(jnp.pi), lo_open=True)
@@ -318,7 +329,7 @@ class FitConfig:
         weights = {n: (None if getattr(obj, n) else 0.0) for n in ("free_space_weight", "collision_weight")}
         # the turn searches and the restarts run the same programs (a turn's window is traced)
         return dataclasses.replace(self, **dict.fromkeys(TRACED), turns=0, turn_window=None, restarts=1,
-                                   objective=dataclasses.replace(obj, sigma_factor=None, **weights))
+                                   restart_apart=0.0, objective=dataclasses.replace(obj, sigma_factor=None, **weights))
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -19,8 +19,8 @@ from evosax.algorithms.population_based.base import PopulationBasedAlgorithm
 
 from ..errors import ConfigError
 from ..genome import decode, genome_layout
-from ..kinematics import forward_kinematics
-from ..objective import Cloud, observe
+from ..kinematics import Links, forward_kinematics
+from ..objective import Cloud, cloud_spread, observe
 from ..rest_model import RestModel, rest_model
 from ..skeleton import Skeleton
 from .baselines import BoundedHillClimbing, evosax_strategy
@@ -267,14 +267,50 @@ def round_keys(key: jax.Array, config: FitConfig) -> list[list]:
     return [portfolio_keys(k, config.round_searches) for k in restart_keys(key, config.restarts)]
 
 
-def run_searches(skel: Skeleton, config: FitConfig, params: FitParams, key: jax.Array, search) -> list:
+def answers_apart(skel: Skeleton, a: Links, b: Links) -> jax.Array:
+    """How far two answers lie apart, in metres: each link's mean end distance to the
+    nearest link of its symmetry orbit in the other answer, averaged over links and both
+    ways (so a left/right swap of alike limbs counts as agreement)."""
+    orbit = jnp.asarray(skel.orbit)
+    d = 0.5 * (jnp.linalg.norm(a.start[:, None] - b.start[None], axis=-1)
+               + jnp.linalg.norm(a.end[:, None] - b.end[None], axis=-1))
+    d = jnp.where(orbit[:, None] == orbit[None, :], d, jnp.inf)
+    return 0.5 * (jnp.mean(jnp.min(d, axis=1)) + jnp.mean(jnp.min(d, axis=0)))
+
+
+def answers_disagree(skel: Skeleton, config: FitConfig, costs: jax.Array, links: Links,
+                     spread: jax.Array) -> jax.Array:
+    """Whether another restart is wanted (:attr:`FitConfig.restart_apart`): the cheapest
+    of the answers so far (``costs (S,)``, ``links`` with a leading ``S`` axis) and the next
+    cheapest lie more than ``restart_apart * spread`` (the cloud's spread) apart."""
+    i = cheapest_index(costs)
+    j = cheapest_index(costs.at[i].set(jnp.nan))
+    pick = lambda k: jax.tree_util.tree_map(lambda x: x[k], links)  # noqa: E731
+    return answers_apart(skel, pick(i), pick(j)) > config.restart_apart * spread
+
+
+_disagree_jit = jax.jit(answers_disagree, static_argnums=1)
+
+
+def run_searches(skel: Skeleton, config: FitConfig, params: FitParams, key: jax.Array, search,
+                 cloud: Cloud | None = None) -> list:
     """Every search of a fit, one after another: per restart, the portfolio's, then
     the turn searches about that portfolio's cheapest answer.  ``search(key, params)``
-    runs one and returns its :class:`FitResult`; returns them all, in order.  The Python
-    driver of :meth:`Fitter.run` and :func:`~jaxpose.parallel.fit_islands`; :func:`fit`
-    traces the same order."""
+    runs one and returns its :class:`FitResult`; returns them all, in order.  With
+    :attr:`FitConfig.restart_apart` a restart runs only when the answers so far disagree
+    about ``cloud`` (required then).  The Python driver of :meth:`Fitter.run` and
+    :func:`~jaxpose.parallel.fit_islands`; :func:`fit` traces the same order."""
+    if config.restart_apart and config.restarts > 1 and cloud is None:
+        raise ConfigError("run_searches: adaptive restarts (restart_apart > 0) need the cloud")
     out = []
-    for keys in round_keys(key, config):
+    for r, keys in enumerate(round_keys(key, config)):
+        if r and config.restart_apart:
+            stacked = jax.tree_util.tree_map(lambda *x: jnp.stack(x), *[res.links for res in out])
+            costs = jnp.stack([res.cost for res in out])
+            f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731  (as the searches see the cloud)
+            spread = cloud_spread(Cloud(f32(cloud.points), f32(cloud.weights)))
+            if not bool(_disagree_jit(skel, config, costs, stacked, spread)):
+                break
         done = [search(k, p) for k, p in zip(keys, config.search_params(params))]
         if config.turns:
             answer = done[int(cheapest_index(jnp.stack([r.cost for r in done])))]
@@ -344,4 +380,24 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
     rounds = round_keys(key, config)
     if config.restarts == 1:  # the keys as a list: the program of a fit without restarts, as before them
         return one_round(rounds[0])
-    return cheapest(jax.lax.map(one_round, jnp.stack([jnp.stack(ks) for ks in rounds])))
+    if not config.restart_apart:
+        return cheapest(jax.lax.map(one_round, jnp.stack([jnp.stack(ks) for ks in rounds])))
+
+    def round_answers(keys):  # every answer of a round, stacked, in run_searches' order
+        ans = searches(keys[:n], every) if n > 1 else \
+            jax.tree_util.tree_map(lambda x: x[None], single_search(cloud, skeleton, keys[0], static, params))
+        if config.turns:
+            rpy = ans.pose.root_rpy[cheapest_index(ans.cost)]
+            turned = searches(keys[n:], turn_params(skeleton, config, params, rpy))
+            ans = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), ans, turned)
+        return ans
+
+    spread = cloud_spread(cloud)
+    answers = round_answers(jnp.stack(rounds[0]))
+    skipped = jax.tree_util.tree_map(jnp.zeros_like, answers)  # a round not run: no answer, nothing counted
+    skipped = skipped._replace(cost=jnp.full_like(answers.cost, jnp.inf))
+    for ks in rounds[1:]:  # a restart only when the answers so far disagree (lax.cond: skipped unless vmapped)
+        more = jax.lax.cond(answers_disagree(skeleton, config, answers.cost, answers.links, spread),
+                            round_answers, lambda _: skipped, jnp.stack(ks))
+        answers = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), answers, more)
+    return cheapest(answers)

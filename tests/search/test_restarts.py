@@ -9,7 +9,7 @@ import dataclasses
 import jax
 import numpy as np
 import pytest
-from search_cases import PORTFOLIO, count_compiles, skeleton, spider_cloud
+from search_cases import PORTFOLIO, count_compiles, descendants, skeleton, spider_cloud
 
 from jaxpose.errors import ConfigError
 from jaxpose.search import FitConfig, Fitter, fit
@@ -95,3 +95,87 @@ def test_a_batch_with_restarts_gets_a_program_of_its_own():
     assert RESTARTS.static() == ONCE.static()
     assert _fit_program(RESTARTS, mesh) is not _fit_program(ONCE, mesh)
     assert _fit_program(ONCE, mesh) is _fit_program(dataclasses.replace(ONCE), mesh)
+
+
+# --------------------------------------------------------------------------- adaptive restarts
+
+
+def apart_oracle(orbit, a, b) -> float:
+    """answers_apart by loops: each link's nearest alike link (same orbit) of the other
+    answer by mean end distance, averaged over links, both ways."""
+    def one(x, y):
+        return np.mean([min((np.linalg.norm(x.start[i] - y.start[j]) + np.linalg.norm(x.end[i] - y.end[j])) / 2
+                            for j in range(len(orbit)) if orbit[j] == orbit[i]) for i in range(len(orbit))])
+    a, b = (jax.tree_util.tree_map(lambda v: np.asarray(v, np.float64), t) for t in (a, b))
+    return (one(a, b) + one(b, a)) / 2
+
+
+def test_answers_apart_matches_loops_and_a_symmetry_costs_nothing():
+    from jaxpose.kinematics import forward_kinematics
+    from jaxpose.search.loop import answers_apart
+    from search_cases import true_pose
+
+    skel = skeleton()
+    a, b = forward_kinematics(skel, true_pose(skel, 0)), forward_kinematics(skel, true_pose(skel, 1))
+    assert len(set(skel.orbit)) < skel.num_links  # the spider has alike legs, or the test says less
+    got = float(answers_apart(skel, a, b))
+    assert got > 0.01 and got == pytest.approx(apart_oracle(skel.orbit, a, b), rel=1e-5)
+    assert float(answers_apart(skel, b, a)) == pytest.approx(got, rel=1e-6)
+    # two alike legs swapped: the same pose to a user, so no distance
+    legs = [i for i, p in enumerate(skel.parents) if p < 0]  # the spider: four legs at its root
+    perm = np.arange(skel.num_links)
+    for i, j in zip(sorted(descendants(skel, legs[0])), sorted(descendants(skel, legs[1]))):
+        perm[i], perm[j] = j, i
+    assert skel.orbit[legs[0]] == skel.orbit[legs[1]]
+    swapped = jax.tree_util.tree_map(lambda v: v[perm], a)
+    assert float(answers_apart(skel, a, swapped)) == 0.0
+
+
+@pytest.fixture(scope="module")
+def round_one():
+    """The first restart's answers (run_searches' order) and their disagreement by the oracle,
+    as a fraction of the cloud's spread."""
+    from jaxpose.objective import cloud_spread
+    from jaxpose.search.loop import run_searches
+
+    skel, cloud, key = skeleton(), spider_cloud(), jax.random.key(5)
+    fitter = Fitter(skel, ONCE)
+    answers = run_searches(skel, fitter.config, fitter.params, key,
+                           lambda k, p: fitter._search(cloud, k, p, None, None)[0])
+    order = np.argsort([float(r.cost) for r in answers], kind="stable")
+    d = apart_oracle(skel.orbit, answers[order[0]].links, answers[order[1]].links)
+    return d / float(cloud_spread(cloud))
+
+
+def test_an_adaptive_restart_runs_only_when_the_first_answers_disagree(runs, round_one):
+    """restart_apart just under the first round's disagreement: the second restart runs (the
+    fit with two restarts); just over it: it does not (the fit without restarts)."""
+    both, alone, _ = runs
+    skel, cloud, key = skeleton(), spider_cloud(), jax.random.key(5)
+    assert round_one > 0
+    for factor, expected in ((0.99, both), (1.01, alone[0])):
+        cfg = dataclasses.replace(RESTARTS, restart_apart=round_one * factor)
+        got = Fitter(skel, cfg).run(cloud, key)
+        np.testing.assert_array_equal(np.asarray(got.genome), np.asarray(expected.genome))
+        assert float(got.cost) == float(expected.cost)
+        assert int(got.objective_evaluations) == int(expected.objective_evaluations)
+
+
+@pytest.mark.slow  # two more compilations of the whole traced search (a setting off by default)
+def test_the_traced_fit_restarts_adaptively_as_the_fitter(round_one):
+    cloud, skel, key = spider_cloud(), skeleton(), jax.random.key(5)
+    run = jax.jit(fit, static_argnames="config")
+    for factor in (0.99, 1.01):
+        cfg = dataclasses.replace(RESTARTS, restart_apart=round_one * factor)
+        traced, driven = run(cloud, skel, key, cfg), Fitter(skel, cfg).run(cloud, key)
+        assert float(traced.cost) == pytest.approx(float(driven.cost), rel=1e-4)
+        assert int(traced.objective_evaluations) == int(driven.objective_evaluations)
+
+
+@pytest.mark.parametrize("change, match", [({"restart_apart": -0.1}, "restart_apart must be >= 0"),
+                                           ({"restart_apart": float("nan")}, "restart_apart"),
+                                           ({"restart_apart": 0.2, "staged_alternatives": (), "turns": 0},
+                                            "two searches a round")])
+def test_impossible_adaptive_restarts_are_refused(change, match):
+    with pytest.raises(ConfigError, match=match):
+        dataclasses.replace(RESTARTS, **change).validate()
