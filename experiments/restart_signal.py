@@ -119,7 +119,8 @@ def main(argv=None) -> int:
     config = HP.config_with(settings)
     tag = "-".join(f"{k}={v}" for k, v in sorted(settings.items()))
     os.makedirs(args.out, exist_ok=True)
-    path = os.path.join(args.out, f"{args.draw}-{'+'.join(args.sets)}-{tag}.json")
+    draw = args.draw if set(args.sets) - {"humanoid"} else "natural"  # the natural set has no draws
+    path = os.path.join(args.out, f"{draw}-{'+'.join(args.sets)}-{tag}.json")
     records = json.load(open(path)) if os.path.exists(path) else []
     done = {(r["set"], r["image"]) for r in records}
     skels = {}

@@ -71,6 +71,10 @@ def register(sub) -> None:
                    help="run the whole fit (its searches and turns) K times with keys of their own and keep the "
                         "cheapest answer: more limbs of hard poses placed, at K times the time "
                         f"(default {FitConfig.restarts})")
+    p.add_argument("--restart-apart", type=float, default=FitConfig.restart_apart, metavar="F",
+                   help="with --restarts: run a restart only when the answers so far disagree, their links further "
+                        "apart than F times the cloud's spread (0: every restart runs; "
+                        f"default {FitConfig.restart_apart:g})")
     p.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",
                    help="after each search, search every limb again with the rest of the body held, N "
                         f"generations each (0: off; default {FitConfig.limb_sweep})")
@@ -118,7 +122,7 @@ def register(sub) -> None:
 FLAGS = {
     "population": "--population", "generations": "--generations", "islands": "--islands",
     "coarse_points": "--coarse-points", "limb_sweep": "--limb-sweep", "turns": "--turns",
-    "restarts": "--restarts",
+    "restarts": "--restarts", "restart_apart": "--restart-apart",
     "pivot_sweep": "--pivot-sweep", "objective.sigma_factor": "--sigma-factor",
     "objective.free_space_weight": "--free-space-weight", "objective.collision_weight": "--collision-weight",
     "near": "--near", "far": "--far", "depth_scale": "--depth-scale", "cloud_scale": "--cloud-scale",
@@ -168,6 +172,7 @@ def config_from_args(args) -> FitConfig:
         pivot_sweep=args.pivot_sweep,
         turns=args.turns,
         restarts=args.restarts,
+        restart_apart=args.restart_apart,
         objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor,
                                   collision_weight=args.collision_weight),
     )

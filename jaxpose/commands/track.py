@@ -77,6 +77,9 @@ def register(sub) -> None:
                    help=f"turn searches after the global search's portfolio (0-3; default {FitConfig.turns})")
     g.add_argument("--restarts", type=int, default=FitConfig.restarts, metavar="K",
                    help=f"the global search run K times, the cheapest answer kept (default {FitConfig.restarts})")
+    g.add_argument("--restart-apart", type=float, default=FitConfig.restart_apart, metavar="F",
+                   help="with --restarts: a restart only when the answers so far lie further apart than F times "
+                        f"the cloud's spread (default {FitConfig.restart_apart:g})")
     g.add_argument("--limb-sweep", type=int, default=FitConfig.limb_sweep, metavar="N",
                    help=f"the limb sweep: N generations a limb (0: off; default {FitConfig.limb_sweep})")
     g.add_argument("--pivot-sweep", type=int, default=FitConfig.pivot_sweep, metavar="N",
