@@ -359,7 +359,9 @@ def fit(cloud: Cloud, skeleton: Skeleton, key: jax.Array, config: FitConfig = Fi
     another (``lax.map``: one traced search), then ``config.turns`` turn searches
     about the cheapest answer, and the cheapest answer of all is returned; with
     ``config.restarts`` that whole round runs again (``lax.map``) with keys of its
-    own (:func:`round_keys`), and the cheapest round's answer is returned.
+    own (:func:`round_keys`), and the cheapest round's answer is returned; with
+    ``config.restart_apart`` each later round runs under ``lax.cond`` only when the
+    answers so far disagree (:func:`answers_disagree`), as :func:`run_searches` decides.
     """
     config = config.validate().for_skeleton(skeleton)
     params = config.params() if params is None else params
