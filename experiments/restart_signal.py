@@ -29,6 +29,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import common  # noqa: E402
 import hard_poses as HP  # noqa: E402
+from outputs import write_json  # noqa: E402
 
 import jax  # noqa: E402
 
@@ -66,8 +67,13 @@ def fit_searches(ds, entry: dict, config, seed: int) -> dict:
             "round_searches": fitter.config.round_searches, "spread": float(cloud_spread(img.cloud))}
 
 
+def by_cost(searches: list[dict]) -> list[dict]:
+    """The answers cheapest first (a non-finite cost last), as the fit ranks them."""
+    return sorted(searches, key=lambda s: s["cost"] if np.isfinite(s["cost"]) else np.inf)
+
+
 def cheapest(searches: list[dict]) -> dict:
-    return min(searches, key=lambda s: s["cost"] if np.isfinite(s["cost"]) else np.inf)
+    return by_cost(searches)[0]
 
 
 def disagreement_mm(skel, a: dict, b: dict) -> float:
@@ -81,7 +87,7 @@ def signals(skel, rec: dict) -> dict:
     the search's own measure (``apart``: :func:`jaxpose.search.loop.answers_apart` over the
     cloud's spread, what ``restart_apart`` is compared with), and the runner-up's cost gap."""
     r = rec["round_searches"]
-    best, runner = sorted(rec["searches"][:r], key=lambda s: s["cost"] if np.isfinite(s["cost"]) else np.inf)[:2]
+    best, runner = by_cost(rec["searches"][:r])[:2]
     links = lambda s: Links(None, None, jnp.asarray(s["start"]), jnp.asarray(s["end"]), None)  # noqa: E731
     return {"runner_up_mm": disagreement_mm(skel, best, runner),
             "apart": float(answers_apart(skel, links(best), links(runner))) / rec["spread"],
@@ -133,10 +139,7 @@ def main(argv=None) -> int:
                 continue
             rec = fit_searches(ds, entry, config.for_skeleton(ds.skeleton), args.seed)
             records.append(rec)
-            tmp = path + ".tmp"
-            with open(tmp, "w") as f:
-                json.dump(records, f)
-            os.replace(tmp, path)
+            write_json(path, records)  # after every image: a rerun skips what is written
             print(f"{rec['set']} {rec['image']}: " + " ".join(f"{s['pcp']:.2f}/{s['cost']:.4f}"
                                                                for s in rec["searches"]), flush=True)
     records = [r for r in records if r["set"] in skels]
