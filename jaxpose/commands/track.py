@@ -104,6 +104,9 @@ def register(sub) -> None:
     k.add_argument("--track-recheck-margin", type=float, default=t.recheck_margin, metavar="M",
                    help="a recheck's global fit replaces the tracked one only when cheaper by this fraction "
                         f"(default {t.recheck_margin})")
+    k.add_argument("--track-length-window", type=float, default=t.length_window, metavar="F",
+                   help="a tracked frame's link lengths stay within this factor of the last frame's (1: held at "
+                        f"the global fit's; 0: the skeleton's ranges; default {t.length_window:g})")
     k.add_argument("--min-points", type=int, default=t.min_points,
                    help=f"a frame with fewer points is lost: the subject is out of view (default {t.min_points})")
     k.add_argument("--loss-ratio", type=float, default=t.loss_ratio,
@@ -116,7 +119,7 @@ def register(sub) -> None:
 TRACK_FLAGS = {"population": "--track-population", "generations": "--track-generations",
                "refine_steps": "--track-refine-steps", "sweep_limbs": "--track-sweep", "min_points": "--min-points",
                "recheck_every": "--track-recheck", "recheck_margin": "--track-recheck-margin",
-               "loss_ratio": "--loss-ratio"}
+               "loss_ratio": "--loss-ratio", "length_window": "--track-length-window"}
 
 
 def track_config_from_args(args):
@@ -128,7 +131,7 @@ def track_config_from_args(args):
     cfg = TrackConfig(fit=fit, population=args.track_population, generations=args.track_generations,
                       refine_steps=args.track_refine_steps, sweep_limbs=args.track_sweep,
                       recheck_every=args.track_recheck, recheck_margin=args.track_recheck_margin,
-                      min_points=args.min_points, loss_ratio=args.loss_ratio)
+                      min_points=args.min_points, loss_ratio=args.loss_ratio, length_window=args.track_length_window)
     try:
         return cfg.validate()
     except ConfigError as e:

@@ -66,6 +66,10 @@ class TrackConfig:
     tracked scale, around the prediction)."""
     scale_window: float = 1.05
     """A tracked frame's scale stays within this factor of the last one."""
+    length_window: float = 0.0
+    """A tracked frame's searched link lengths stay within this factor of the last frame's,
+    and the motion model predicts them unchanged (1: held at the global fit's lengths;
+    0: searched over the skeleton's ranges and predicted with the motion's velocity)."""
     min_points: int = 50
     """A frame with fewer points than this is lost: the subject is not in view."""
     loss_ratio: float = 1.6
@@ -107,6 +111,8 @@ class TrackConfig:
                 raise ConfigError(f"{name} must lie in [0, 1{')' if name == 'cost_memory' else ']'}, got {v!r}")
         if not require_finite("scale_window", self.scale_window) >= 1.0:
             raise ConfigError(f"scale_window must be >= 1, got {self.scale_window!r}")
+        if self.length_window != 0 and not require_finite("length_window", self.length_window) >= 1.0:
+            raise ConfigError(f"length_window must be >= 1 (or 0 for the skeleton's ranges), got {self.length_window!r}")
         if not 0.0 <= require_finite("recheck_margin", self.recheck_margin) < 1.0:
             raise ConfigError(f"recheck_margin must lie in [0, 1), got {self.recheck_margin!r}")
         if not require_finite("loss_ratio", self.loss_ratio) > 1.0:

@@ -20,8 +20,9 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from ..genome import Bounds, decode, encode, genome_bounds, held_bounds
+from ..genome import Bounds, decode, encode, genome_bounds, genome_layout, held_bounds
 from ..kinematics import Links, forward_kinematics
 from ..objective import Cloud, Observation, observe
 from ..search.config import FitConfig
@@ -45,14 +46,30 @@ class LocalFit(NamedTuple):
     history: jax.Array  # (generations,)
 
 
+def length_genes(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
+    """``(genes, links)``: where the searched lengths sit in the genome, and their links."""
+    layout = genome_layout(skel)
+    genes = [k for k, n in enumerate(layout.names) if n.endswith(".length")]
+    return np.asarray(genes, np.int32), np.asarray([layout.link_of_gene[k] for k in genes], np.int32)
+
+
 def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
     """Gene ranges around the prediction ``pred`` (the root's angles: a turn relative to
-    its orientation, :func:`~jaxpose.genome.held_bounds`)."""
+    its orientation, :func:`~jaxpose.genome.held_bounds`; the scale within ``scale_window``
+    of the prediction's, the lengths within ``length_window`` of them when it is set)."""
     b = genome_bounds(skel, pred.root_t, config.move * pred.scale)
     b = held_bounds(b, pred.root_rpy, config.turn, jnp.asarray(True))
-    s_lo = jnp.maximum(skel.scale_lo, pred.scale / config.scale_window)
-    s_hi = jnp.maximum(jnp.minimum(skel.scale_hi, pred.scale * config.scale_window), s_lo)
-    return b._replace(lo=b.lo.at[SCALE].set(s_lo), hi=b.hi.at[SCALE].set(s_hi))
+    lo, hi = b.lo, b.hi
+    windows = [(np.asarray([SCALE], np.int32), pred.scale[None], skel.scale_lo[None], skel.scale_hi[None],
+                config.scale_window)]
+    genes, links = length_genes(skel)
+    if config.length_window and genes.size:  # bones do not change length from frame to frame
+        windows.append((genes, pred.lengths[links], skel.length_lo[links], skel.length_hi[links],
+                        config.length_window))
+    for idx, value, v_lo, v_hi, w in windows:
+        w_lo = jnp.maximum(v_lo, value / w)
+        lo, hi = lo.at[idx].set(w_lo), hi.at[idx].set(jnp.maximum(jnp.minimum(v_hi, value * w), w_lo))
+    return b._replace(lo=lo, hi=hi)
 
 
 def local_cost_fn(skel: Skeleton, fit: FitConfig, obs: Observation, bounds: Bounds):

@@ -74,13 +74,14 @@ def initial_state(skel: Skeleton, key: jax.Array, init: Pose | None = None) -> T
 
 
 def predict(skel: Skeleton, config: TrackConfig, state: TrackState) -> tuple[Pose, Pose]:
-    """``(prediction, last pose)``: constant velocity, damped by ``config.velocity``."""
+    """``(prediction, last pose)``: constant velocity, damped by ``config.velocity`` (the lengths
+    unchanged when ``config.length_window`` is set)."""
     L = skel.num_links
     last = vector_to_pose(state.pose, L)
     pred = vector_to_pose(state.pose + config.velocity * state.velocity, L)
     R = rpy_matrix(config.velocity * state.velocity[3:6]) @ rpy_matrix(last.root_rpy)
     angles = jnp.clip(pred.angles, skel.angle_lo, skel.angle_hi)
-    lengths = jnp.clip(pred.lengths, skel.length_lo, skel.length_hi)
+    lengths = last.lengths if config.length_window else jnp.clip(pred.lengths, skel.length_lo, skel.length_hi)
     return pred._replace(root_rpy=matrix_to_rpy(R), angles=angles, lengths=lengths, scale=last.scale), last
 
 

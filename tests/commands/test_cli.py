@@ -302,3 +302,16 @@ def test_impossible_turns_and_restarts_are_one_line_naming_the_flag(flag, value,
 
     with pytest.raises(ConfigError, match=rf"^{flag} must be"):
         config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", flag, value]))
+
+
+def test_track_options_reach_the_config():
+    from jaxpose.cli import build_parser
+    from jaxpose.commands.track import track_config_from_args
+    from jaxpose.tracking import TrackConfig
+
+    args = build_parser().parse_args(["track", "frames", "--skeleton", "spider", "--out-dir", "o",
+                                      "--track-length-window", "1.02", "--track-recheck", "30"])
+    cfg = track_config_from_args(args)
+    assert (cfg.length_window, cfg.recheck_every) == (1.02, 30)
+    default = track_config_from_args(build_parser().parse_args(["track", "f", "--skeleton", "spider", "--out-dir", "o"]))
+    assert default == TrackConfig()

@@ -94,6 +94,7 @@ def test_a_stack_names_its_frames_by_number(sequence, tmp_path):
     ("sweep", ["{seq}/frames", "--track-sweep", "-1"], "--track-sweep must be"),
     ("recheck", ["{seq}/frames", "--track-recheck", "-2"], "--track-recheck must be"),
     ("margin", ["{seq}/frames", "--track-recheck-margin", "1"], "--track-recheck-margin must lie in [0, 1)"),
+    ("lengths", ["{seq}/frames", "--track-length-window", "0.5"], "--track-length-window must be >= 1"),
     ("turns", ["{seq}/frames", "--turns", "5"], "--turns must be"),
     ("empty folder", ["{tmp}"], "the folder holds no depth image or point cloud"),
     ("corrupt", ["{seq}/frames/f000.png", "{tmp}/bad.png"], "bad.png"),
