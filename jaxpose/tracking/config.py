@@ -112,7 +112,8 @@ class TrackConfig:
         if not require_finite("scale_window", self.scale_window) >= 1.0:
             raise ConfigError(f"scale_window must be >= 1, got {self.scale_window!r}")
         if self.length_window != 0 and not require_finite("length_window", self.length_window) >= 1.0:
-            raise ConfigError(f"length_window must be >= 1 (or 0 for the skeleton's ranges), got {self.length_window!r}")
+            raise ConfigError(f"length_window must be >= 1 (or 0 for the skeleton's ranges), "
+                              f"got {self.length_window!r}")
         if not 0.0 <= require_finite("recheck_margin", self.recheck_margin) < 1.0:
             raise ConfigError(f"recheck_margin must lie in [0, 1), got {self.recheck_margin!r}")
         if not require_finite("loss_ratio", self.loss_ratio) > 1.0:

@@ -313,5 +313,6 @@ def test_track_options_reach_the_config():
                                       "--track-length-window", "1.02", "--track-recheck", "30"])
     cfg = track_config_from_args(args)
     assert (cfg.length_window, cfg.recheck_every) == (1.02, 30)
-    default = track_config_from_args(build_parser().parse_args(["track", "f", "--skeleton", "spider", "--out-dir", "o"]))
+    plain = build_parser().parse_args(["track", "f", "--skeleton", "spider", "--out-dir", "o"])
+    assert track_config_from_args(plain) == TrackConfig()
     assert default == TrackConfig()
