@@ -315,4 +315,3 @@ def test_track_options_reach_the_config():
     assert (cfg.length_window, cfg.recheck_every) == (1.02, 30)
     plain = build_parser().parse_args(["track", "f", "--skeleton", "spider", "--out-dir", "o"])
     assert track_config_from_args(plain) == TrackConfig()
-    assert default == TrackConfig()
