@@ -66,10 +66,12 @@ class TrackConfig:
     tracked scale, around the prediction)."""
     scale_window: float = 1.05
     """A tracked frame's scale stays within this factor of the last one."""
-    length_window: float = 0.0
+    length_window: float = 1.0
     """A tracked frame's searched link lengths stay within this factor of the last frame's,
-    and the motion model predicts them unchanged (1: held at the global fit's lengths;
-    0: searched over the skeleton's ranges and predicted with the motion's velocity)."""
+    and the motion model predicts them unchanged (1, the default: held at the global fit's
+    lengths, since bones keep their length; 0: searched over the skeleton's ranges and
+    predicted with the motion's velocity, where a short end link drifted to the end of its
+    range: docs/tracking.md, "Lengths held")."""
     min_points: int = 50
     """A frame with fewer points than this is lost: the subject is not in view."""
     loss_ratio: float = 1.6

@@ -34,7 +34,7 @@ def test_the_length_genes_span_the_window_within_the_skeletons_range(skel, windo
         np.asarray(skel.length_hi) - np.asarray(skel.length_lo))  # the range's ends included
     pred = pred._replace(lengths=jnp.asarray(lengths, jnp.float32))
     b = local_bounds(skel, dataclasses.replace(CFG, length_window=window), pred)
-    free = local_bounds(skel, CFG, pred)
+    free = local_bounds(skel, dataclasses.replace(CFG, length_window=0.0), pred)
     rows = length_rows(skel)
     assert rows
     for k, link in rows:
