@@ -38,6 +38,9 @@ def register(sub) -> None:
                         "(default: a PCD file's VIEWPOINT, else the origin looking along +z)")
     p.add_argument("--near", type=float, default=0.3, help="nearest depth kept, metres (default 0.3)")
     p.add_argument("--far", type=float, default=8.0, help="farthest depth kept, metres (default 8)")
+    p.add_argument("--scale", type=float, default=None, metavar="S",
+                   help="the subject's global scale when known, e.g. 1 for a robot file at its robot's size "
+                        "(default: searched)")
     p.add_argument("--search-lengths", action="store_true",
                    help="robot files (.urdf, MJCF): also search every link length within +-30%% (default: the model's)")
     add_max_capsules(p)
@@ -122,7 +125,7 @@ def register(sub) -> None:
 FLAGS = {
     "population": "--population", "generations": "--generations", "islands": "--islands",
     "coarse_points": "--coarse-points", "limb_sweep": "--limb-sweep", "turns": "--turns",
-    "restarts": "--restarts", "restart_apart": "--restart-apart",
+    "restarts": "--restarts", "restart_apart": "--restart-apart", "scale": "--scale",
     "pivot_sweep": "--pivot-sweep", "objective.sigma_factor": "--sigma-factor",
     "objective.free_space_weight": "--free-space-weight", "objective.collision_weight": "--collision-weight",
     "near": "--near", "far": "--far", "depth_scale": "--depth-scale", "cloud_scale": "--cloud-scale",
@@ -173,6 +176,7 @@ def config_from_args(args) -> FitConfig:
         turns=args.turns,
         restarts=args.restarts,
         restart_apart=args.restart_apart,
+        scale=args.scale,
         objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor,
                                   collision_weight=args.collision_weight),
     )

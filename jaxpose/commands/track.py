@@ -59,6 +59,8 @@ def register(sub) -> None:
     p.add_argument("--remove-planes", type=int, default=0, metavar="N",
                    help="drop the points of up to N largest planes in every frame (default 0)")
     p.add_argument("--max-points", type=int, default=1024, help="points sampled per frame (default 1024)")
+    p.add_argument("--scale", type=float, default=None, metavar="S",
+                   help="the subject's global scale when known, e.g. 1 for a robot file (default: searched)")
     p.add_argument("--search-lengths", action="store_true",
                    help="robot files (.urdf, MJCF): also search every link length within +-30%%")
     add_max_capsules(p)

@@ -139,6 +139,11 @@ class FitConfig:
     scale_window: float = 1.5
     """The scale is searched within ``s0 / w .. s0 * w`` of the cloud's spread over
     the model's (0: the skeleton's range alone)."""
+    scale: float | None = None
+    """The subject's global scale when it is known (``None``: searched, near the cloud's spread
+    over the model's).  A robot file's model has its robot's size: ``1``.  A folded pose
+    spreads less than the rest pose the estimate assumes, and the search may settle on a
+    smaller body (docs/search.md, "Known scale")."""
     islands: int = 32
     """Independent sub-populations searched side by side (vmapped)."""
     halve_islands_at: tuple[float, ...] = (1 / 3, 1 / 2, 2 / 3, 5 / 6)
@@ -222,6 +227,8 @@ class FitConfig:
         for name in ("init_root_std", "init_pca_std"):
             if not require_finite(name, getattr(self, name)) >= 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if self.scale is not None and not require_finite("scale", self.scale) > 0:
+            raise ConfigError(f"scale must be > 0 (or None: searched), got {self.scale!r}")
         if self.scale_window != 0 and not require_finite("scale_window", self.scale_window) > 1.0:
             raise ConfigError(f"scale_window must be > 1 (or 0 for the skeleton's range), got {self.scale_window}")
         if not all(isinstance(f, (int, float)) and 0.0 < f < 1.0 for f in self.halve_islands_at):

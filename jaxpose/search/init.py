@@ -63,14 +63,19 @@ def initial_scale(skel: Skeleton, obs: Observation, rest: RestModel | None = Non
 
 def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig, rest: RestModel | None = None,
                   params: FitParams | None = None) -> Bounds:
-    """Gene ranges for this cloud: root within the cloud's extent, scale near :func:`initial_scale`;
+    """Gene ranges for this cloud: root within the cloud's extent, scale near :func:`initial_scale`
+    (``config.scale`` when it is known);
     with ``params.root_window > 0`` the root's orientation within that window about ``params.root_rpy``
     (a relative turn: :func:`~jaxpose.genome.held_bounds`)."""
     centre = cloud_centre(obs.cloud)
     d = jnp.sqrt(jnp.sum((obs.cloud.points - centre) ** 2, -1))
     extent = jnp.maximum(jnp.max(jnp.where(obs.cloud.weights > 0, d, 0.0)), 1e-3)
     bounds = genome_bounds(skel, centre, extent)
-    if config.scale_window:
+    if config.scale is not None:  # known: the gene spans the one value
+        i = genome_layout(skel).names.index("scale")
+        s = jnp.asarray(config.scale, jnp.float32)
+        bounds = Bounds(bounds.lo.at[i].set(s), bounds.hi.at[i].set(s))
+    elif config.scale_window:
         s0 = initial_scale(skel, obs, rest)
         i = genome_layout(skel).names.index("scale")
         lo = jnp.maximum(skel.scale_lo, s0 / config.scale_window)
@@ -100,7 +105,7 @@ def initial_population(key, skel: Skeleton, obs: Observation, bounds: Bounds, co
     scale_i = names.index("scale")
     is_len = np.array([n.endswith(".length") for n in names])
     g = jnp.where(root_t, 0.5 + params.init_root_std * z[:, :D], g)
-    s0 = initial_scale(skel, obs, rest)
+    s0 = initial_scale(skel, obs, rest) if config.scale is None else jnp.asarray(config.scale, jnp.float32)
     s_lo, s_hi = bounds.lo[scale_i], bounds.hi[scale_i]
     s_gene = (s0 * jnp.exp(0.15 * z[:, D]) - s_lo) / jnp.maximum(s_hi - s_lo, 1e-9)
     g = g.at[:, scale_i].set(s_gene)

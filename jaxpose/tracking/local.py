@@ -56,7 +56,8 @@ def length_genes(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
 def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
     """Gene ranges around the prediction ``pred`` (the root's angles: a turn relative to
     its orientation, :func:`~jaxpose.genome.held_bounds`; the scale within ``scale_window``
-    of the prediction's, the lengths within ``length_window`` of them when it is set)."""
+    of the prediction's or the known ``fit.scale``, the lengths within ``length_window`` of the
+    prediction's when it is set)."""
     b = genome_bounds(skel, pred.root_t, config.move * pred.scale)
     b = held_bounds(b, pred.root_rpy, config.turn, jnp.asarray(True))
     lo, hi = b.lo, b.hi
@@ -69,6 +70,8 @@ def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
     for idx, value, v_lo, v_hi, w in windows:
         w_lo = jnp.maximum(v_lo, value / w)
         lo, hi = lo.at[idx].set(w_lo), hi.at[idx].set(jnp.maximum(jnp.minimum(v_hi, value * w), w_lo))
+    if config.fit.scale is not None:  # known: held, as in the global search
+        lo, hi = lo.at[SCALE].set(config.fit.scale), hi.at[SCALE].set(config.fit.scale)
     return b._replace(lo=lo, hi=hi)
 
 

@@ -284,17 +284,17 @@ def test_fit_options_reach_the_config():
     args = build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", "--coarse-points", "256",
                                       "--islands", "3", "--population", "20", "--generations", "40",
                                       "--tie-lengths", "--limb-sweep", "7", "--pivot-sweep", "5", "--turns", "2",
-                                      "--restarts", "3", "--restart-apart", "0.25"])
+                                      "--restarts", "3", "--restart-apart", "0.25", "--scale", "1"])
     cfg = config_from_args(args)
     assert (cfg.coarse_points, cfg.islands, cfg.population, cfg.generations, cfg.limb_sweep, cfg.pivot_sweep,
-            cfg.turns, cfg.restarts, cfg.restart_apart) == (256, 3, 20, 40, 7, 5, 2, 3, 0.25)
+            cfg.turns, cfg.restarts, cfg.restart_apart, cfg.scale) == (256, 3, 20, 40, 7, 5, 2, 3, 0.25, 1.0)
     assert cfg.tie_lengths
     default = config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider"]))
     assert default == FitConfig()
 
 
 @pytest.mark.parametrize("flag,value", [("--turns", "4"), ("--turns", "-1"), ("--restarts", "0"),
-                                        ("--restart-apart", "-0.2")])
+                                        ("--restart-apart", "-0.2"), ("--scale", "0")])
 def test_impossible_turns_and_restarts_are_one_line_naming_the_flag(flag, value, capsys):
     from jaxpose.cli import build_parser
     from jaxpose.commands.fit import config_from_args
@@ -310,8 +310,8 @@ def test_track_options_reach_the_config():
     from jaxpose.tracking import TrackConfig
 
     args = build_parser().parse_args(["track", "frames", "--skeleton", "spider", "--out-dir", "o",
-                                      "--track-length-window", "1.02", "--track-recheck", "30"])
+                                      "--track-length-window", "1.02", "--track-recheck", "30", "--scale", "1.1"])
     cfg = track_config_from_args(args)
-    assert (cfg.length_window, cfg.recheck_every) == (1.02, 30)
+    assert (cfg.length_window, cfg.recheck_every, cfg.fit.scale) == (1.02, 30, 1.1)
     plain = build_parser().parse_args(["track", "f", "--skeleton", "spider", "--out-dir", "o"])
     assert track_config_from_args(plain) == TrackConfig()

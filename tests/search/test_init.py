@@ -114,3 +114,31 @@ def test_a_turn_searchs_aligned_starts_keep_their_orientation_inside_the_window(
     angle = np.degrees(np.arccos(np.clip((np.einsum("pij,ij->p", R, A) - 1) / 2, -1, 1)))
     assert angle.max() <= np.degrees(3 * window) + 1e-3  # a turn of at most `window` about each axis
     assert angle.max() > 5  # the window is used, not collapsed
+
+
+@pytest.mark.parametrize("scale", [0.7, 1.0, 2.5])  # 2.5: outside the spider's own range, as a user may know
+def test_a_known_scale_is_the_scale_genes_one_value(scale):
+    skel, cloud = skeleton(), spider_cloud()
+    cfg = dataclasses.replace(GA, scale=scale)
+    obs = observe(cloud, OBJ)
+    b = search_bounds(skel, obs, cfg)
+    i = genome_layout(skel).names.index("scale")
+    assert float(b.lo[i]) == float(b.hi[i]) == np.float32(scale)
+    free = search_bounds(skel, obs, GA)  # every other gene as without it
+    others = np.arange(b.lo.shape[0]) != i
+    np.testing.assert_array_equal(np.asarray(b.lo)[others], np.asarray(free.lo)[others])
+    np.testing.assert_array_equal(np.asarray(b.hi)[others], np.asarray(free.hi)[others])
+    pop = initial_population(jax.random.key(0), skel, obs, b, cfg, cfg.params())
+    poses = jax.vmap(lambda g: decode(skel, b, g))(pop)
+    np.testing.assert_array_equal(np.asarray(poses.scale), np.float32(scale))
+
+
+def test_a_fit_with_a_known_scale_returns_it_and_bad_values_are_refused():
+    from jaxpose.errors import ConfigError
+    from jaxpose.search import fit_cloud
+
+    r = fit_cloud(spider_cloud(), skeleton(), 0, dataclasses.replace(GA, scale=0.9))
+    assert float(r.pose.scale) == np.float32(0.9)
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ConfigError, match="scale"):
+            dataclasses.replace(GA, scale=bad).validate()

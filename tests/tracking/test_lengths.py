@@ -91,3 +91,11 @@ def test_the_window_is_checked():
         TrackConfig(length_window=float("nan")).validate()
     TrackConfig(length_window=0.0).validate()
     TrackConfig(length_window=1.0).validate()
+
+
+def test_a_known_scale_is_held_in_tracked_frames(skel):
+    pred = true_pose(skel, 0)._replace(scale=jnp.float32(1.0))
+    cfg = dataclasses.replace(CFG, fit=dataclasses.replace(CFG.fit, scale=0.97))
+    b = local_bounds(skel, cfg, pred)
+    assert float(b.lo[6]) == float(b.hi[6]) == np.float32(0.97)  # genome_layout: the scale is gene 6
+    assert jp.genome_layout(skel).names[6] == "scale"
