@@ -71,13 +71,12 @@ def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig, rest: Res
     d = jnp.sqrt(jnp.sum((obs.cloud.points - centre) ** 2, -1))
     extent = jnp.maximum(jnp.max(jnp.where(obs.cloud.weights > 0, d, 0.0)), 1e-3)
     bounds = genome_bounds(skel, centre, extent)
+    i = genome_layout(skel).names.index("scale")
     if config.scale is not None:  # known: the gene spans the one value
-        i = genome_layout(skel).names.index("scale")
         s = jnp.asarray(config.scale, jnp.float32)
         bounds = Bounds(bounds.lo.at[i].set(s), bounds.hi.at[i].set(s))
     elif config.scale_window:
         s0 = initial_scale(skel, obs, rest)
-        i = genome_layout(skel).names.index("scale")
         lo = jnp.maximum(skel.scale_lo, s0 / config.scale_window)
         hi = jnp.maximum(jnp.minimum(skel.scale_hi, s0 * config.scale_window), lo)
         bounds = Bounds(bounds.lo.at[i].set(lo), bounds.hi.at[i].set(hi))
