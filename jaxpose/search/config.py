@@ -228,7 +228,7 @@ class FitConfig:
             if not require_finite(name, getattr(self, name)) >= 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         if self.scale is not None and not require_finite("scale", self.scale) > 0:
-            raise ConfigError(f"scale must be > 0 (or None: searched), got {self.scale!r}")
+            raise ConfigError(f"scale must be > 0 (or left unset: searched), got {self.scale!r}")
         if self.scale_window != 0 and not require_finite("scale_window", self.scale_window) > 1.0:
             raise ConfigError(f"scale_window must be > 1 (or 0 for the skeleton's range), got {self.scale_window}")
         if not all(isinstance(f, (int, float)) and 0.0 < f < 1.0 for f in self.halve_islands_at):
