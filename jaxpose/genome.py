@@ -49,6 +49,11 @@ class GenomeLayout:
     def num_params(self) -> int:
         return 7 + 4 * self.num_links
 
+    def length_genes(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(genes, links)``: where the searched lengths sit in the genome, and their links."""
+        genes = [k for k, n in enumerate(self.names) if n.endswith(".length")]
+        return np.asarray(genes, np.int32), np.asarray([self.link_of_gene[k] for k in genes], np.int32)
+
     def gene_mask(self, links) -> np.ndarray:
         """Boolean mask over the genome of the genes belonging to ``links``."""
         links = set(links)

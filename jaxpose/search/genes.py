@@ -33,8 +33,8 @@ def unlocked(skel: Skeleton, config: FitConfig, generation, staged=None) -> jax.
 def length_orbits(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
     """Genes of searched lengths that alike links share (``Skeleton.orbit``), and each
     one's orbit number: ``(genes (T,), orbit (T,))``, empty when there are none."""
-    layout = genome_layout(skel)
-    gene_of = {layout.link_of_gene[k]: k for k, n in enumerate(layout.names) if n.endswith(".length")}
+    length_gene, length_link = genome_layout(skel).length_genes()
+    gene_of = dict(zip(length_link.tolist(), length_gene.tolist()))
     members: dict[int, list[int]] = {}
     for i, o in enumerate(skel.orbit):
         if i in gene_of:

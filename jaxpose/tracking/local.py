@@ -46,13 +46,6 @@ class LocalFit(NamedTuple):
     history: jax.Array  # (generations,)
 
 
-def length_genes(skel: Skeleton) -> tuple[np.ndarray, np.ndarray]:
-    """``(genes, links)``: where the searched lengths sit in the genome, and their links."""
-    layout = genome_layout(skel)
-    genes = [k for k, n in enumerate(layout.names) if n.endswith(".length")]
-    return np.asarray(genes, np.int32), np.asarray([layout.link_of_gene[k] for k in genes], np.int32)
-
-
 def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
     """Gene ranges around the prediction ``pred`` (the root's angles: a turn relative to
     its orientation, :func:`~jaxpose.genome.held_bounds`; the scale within ``scale_window``
@@ -63,7 +56,7 @@ def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
     lo, hi = b.lo, b.hi
     windows = [(np.asarray([SCALE], np.int32), pred.scale[None], skel.scale_lo[None], skel.scale_hi[None],
                 config.scale_window)]
-    genes, links = length_genes(skel)
+    genes, links = genome_layout(skel).length_genes()
     if config.length_window and genes.size:  # bones do not change length from frame to frame
         windows.append((genes, pred.lengths[links], skel.length_lo[links], skel.length_hi[links],
                         config.length_window))
