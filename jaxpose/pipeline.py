@@ -237,12 +237,13 @@ def robot_max_capsules(skel_file: str | None, max_capsules: int | None, loaded_h
 
 
 def load_fit_skeleton(skeleton: str | Skeleton, search_lengths: bool = False,
-                      max_capsules: int | None = None) -> tuple[Skeleton, str | None]:
+                      max_capsules: int | None = None, search_scale: bool = False) -> tuple[Skeleton, str | None]:
     """The skeleton to fit and its file (``None`` for a :class:`Skeleton` object)."""
     if isinstance(skeleton, Skeleton):
         return skeleton, None
     skel_file = resolve_skeleton_path(str(skeleton))
-    return load_skeleton(skel_file, search_lengths=search_lengths, max_capsules=max_capsules), skel_file
+    skel = load_skeleton(skel_file, search_lengths=search_lengths, max_capsules=max_capsules, search_scale=search_scale)
+    return skel, skel_file
 
 
 def fit_on_devices(cloud: Cloud, skel: Skeleton, seed: int, config: FitConfig, devices: int,
@@ -275,13 +276,14 @@ def fit_file(
     hypotheses: int = 1,
     time_budget: float | None = None,
     devices: int | None = None,
+    search_scale: bool = False,
 ) -> FitOutput:
     """Fit a skeleton (file path, shipped name, or :class:`Skeleton`) to a depth image
     or a point-cloud file (``.ply``, ``.pcd``, ``.xyz``, an ``(N, 3)`` ``.npy``: see
     :mod:`jaxpose.io.cloud_file`; the result is then in the sensor's frame).
 
-    ``search_lengths``: for a robot file given by path, search its capsule lengths
-    (see :func:`~jaxpose.io.skeleton_file.load_skeleton`), and ``max_capsules``: model each
+    ``search_lengths``, ``search_scale``: for a robot file given by path, search its capsule
+    lengths, its global scale (see :func:`~jaxpose.io.skeleton_file.load_skeleton`), and ``max_capsules``: model each
     link by that many capsules at most (default: :data:`~jaxpose.io.capsules.MAX_CAPSULES`; for a
     :class:`Skeleton` object, the setting it was loaded with, for the record only).
     ``skeleton_file``: the file a :class:`Skeleton` object was loaded from
@@ -296,7 +298,7 @@ def fit_file(
         raise ConfigError("hypotheses and time_budget need the fit on one device (devices=None), "
                           f"got devices={devices}")
     options.validate()
-    skel, skel_file = load_fit_skeleton(skeleton, search_lengths, max_capsules)
+    skel, skel_file = load_fit_skeleton(skeleton, search_lengths, max_capsules, search_scale)
     skel_file = skel_file or skeleton_file
     config = config.for_skeleton(skel)  # the generations the fit runs, also in the result's record
     if is_cloud_file(path):
@@ -329,6 +331,7 @@ def fit_file(
     if frame:
         doc["frame"] = frame
     doc["skeleton"]["search_lengths"] = bool(search_lengths)
+    doc["skeleton"]["search_scale"] = bool(search_scale)
     doc["skeleton"]["max_capsules"] = robot_max_capsules(skel_file, max_capsules, not isinstance(skeleton, Skeleton))
     if devices is not None:
         doc["timing"]["devices"] = int(devices)  # the fit's islands split over them

@@ -89,6 +89,8 @@ def end_to_end(tmp_path, capsys, skeleton, tree, render_extra=()):
         assert math.isfinite(link["radius"]) and link["radius"] >= 0
     assert result["skeleton"]["num_links"] == len(tree)
     assert result["skeleton"]["max_capsules"] == MAX_CAPSULES  # the default for robot files
+    # a robot file has its robot's size: the scale is held at 1 unless --search-scale
+    assert result["skeleton"]["search_scale"] is False and result["params"]["scale"] == 1.0
     assert sorted(link["name"] for link in truth["links"]) == sorted(tree)
     assert truth["camera"]["intrinsics"]["width"] == 160 and truth["camera"]["intrinsics"]["height"] == 120
 
@@ -143,6 +145,21 @@ def test_search_lengths_flag(tmp_path, capsys):
     assert not (tmp_path / "r.json").exists()
 
 
+@pytest.mark.parametrize("extra, words", [(["--search-scale"], "--search-scale: only for robot files"),
+                                          (["--search-scale", "--scale", "1", "--skeleton", "arm7.urdf"],
+                                           "--search-scale and --scale 1: give one")])
+def test_search_scale_flag_errors(tmp_path, capsys, extra, words):
+    """--search-scale on a native file, or with --scale: one clear error before any search, no output."""
+    npy = tmp_path / "d.npy"
+    np.save(npy, np.full((120, 160), 1.5, np.float32))
+    out = tmp_path / "r.json"
+    extra = [os.path.join(FIXTURES, e) if e.endswith(".urdf") else e for e in extra]
+    assert main(["fit", str(npy), "--skeleton", "spider", *extra, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("value, words", [("2", "--max-capsules: only for robot files"),
                                           ("0", "--max-capsules: must be at least 1")])
 def test_max_capsules_flag_errors(tmp_path, capsys, value, words):
@@ -166,10 +183,11 @@ def test_max_capsules_flag_reaches_the_importer_and_the_record(tmp_path, capsys)
     assert main(["render", "--skeleton", path, "--size", "160x120", "--seed", "1", "--out", str(a),
                  "--truth", str(t)]) == 0
     assert main(["fit", str(a), "--skeleton", path, "--intrinsics", str(t), "--max-capsules", "1",
-                 "--out", str(r), *TINY]) == 0
+                 "--search-scale", "--out", str(r), *TINY]) == 0
     capsys.readouterr()
     result = json.loads(r.read_text())
-    assert result["skeleton"]["max_capsules"] == 1
+    assert result["skeleton"]["max_capsules"] == 1 and result["skeleton"]["search_scale"] is True
+    assert 0.5 <= result["params"]["scale"] <= 2.0  # searched (SEARCHED_SCALE_RANGE)
     assert {link["name"]: link["parent"] for link in result["links"]} == urdf_tree(path)
     # the truth was rendered with the default model (extra capsules): a one-capsule result does not match it
     truth = json.loads(t.read_text())

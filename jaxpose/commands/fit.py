@@ -15,7 +15,7 @@ from ..errors import ConfigError
 from ..objective import ObjectiveConfig
 from ..search import FitConfig
 from .progress import ProgressBar, check_output_path
-from .robot_options import add_max_capsules, check_max_capsules, check_robot_option
+from .robot_options import add_search_options, check_search_options
 
 BATCH = 8  # images per device in one batch of several inputs (--batch)
 
@@ -39,11 +39,9 @@ def register(sub) -> None:
     p.add_argument("--near", type=float, default=0.3, help="nearest depth kept, metres (default 0.3)")
     p.add_argument("--far", type=float, default=8.0, help="farthest depth kept, metres (default 8)")
     p.add_argument("--scale", type=float, default=None, metavar="S",
-                   help="the subject's global scale when known, e.g. 1 for a robot file at its robot's size "
-                        "(default: searched)")
-    p.add_argument("--search-lengths", action="store_true",
-                   help="robot files (.urdf, MJCF): also search every link length within +-30%% (default: the model's)")
-    add_max_capsules(p)
+                   help="the subject's global scale when known (default: searched; 1 for a robot file, "
+                        "its robot's size)")
+    add_search_options(p)
     p.add_argument("--background", help="depth images: background depth image to subtract (same size)")
     p.add_argument("--remove-planes", type=int, default=0, metavar="N",
                    help="drop the points of up to N largest planes (a floor, a wall) before fitting; for an "
@@ -324,8 +322,7 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     jobs = outputs(args)
     check_conflicts(args, jobs)
-    check_max_capsules(args, args.skeleton)
-    check_robot_option("--search-lengths", args.search_lengths, args.skeleton, "whose links set their own length_range")
+    check_search_options(args)
     flags = ("--out-dir", "--plots") if args.out_dir else ("--out", "--plot")
     for _, result, plot in jobs:
         check_output_path(result, flags[0])
@@ -338,7 +335,7 @@ def run(args: argparse.Namespace) -> int:
     options = input_options(args)
     from ..io.capsules import MAX_CAPSULES
 
-    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
+    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules, args.search_scale)
     capsules = MAX_CAPSULES if args.max_capsules is None else args.max_capsules  # the record (robot files)
     config = config.for_skeleton(skel)  # the generations: the bar's total
     # a mixed batch: the depth-image options (a background) leave the clouds alone
@@ -347,7 +344,7 @@ def run(args: argparse.Namespace) -> int:
     if batched(args, jobs):
         from .fit_batch import run_batches
 
-        return run_batches(args, jobs, skel, skel_file, capsules, config, per_input)
+        return run_batches(args, jobs, skel, skel_file, config, per_input)
     if args.resume:
         jobs = [job for job in jobs if not finished(job)]
     if len(jobs) > 1:
@@ -360,7 +357,8 @@ def run(args: argparse.Namespace) -> int:
             with warnings.catch_warnings():
                 warnings.showwarning = _show_input_warning
                 out = fit_file(path, skel, config, args.seed, per_input[path], progress=bar.update,
-                                     search_lengths=args.search_lengths, skeleton_file=skel_file,
+                                     search_lengths=args.search_lengths, search_scale=args.search_scale,
+                                     skeleton_file=skel_file,
                                      max_capsules=capsules, hypotheses=args.hypotheses,
                                      time_budget=args.time_budget, devices=args.devices)
         finally:

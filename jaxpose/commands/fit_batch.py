@@ -57,15 +57,16 @@ def _observe(path, skel, options):
     return depth, k, cloud, record, notes
 
 
-def run_batches(args, jobs, skel, skel_file, capsules, config, per_input) -> int:
+def run_batches(args, jobs, skel, skel_file, config, per_input) -> int:
     from .. import distributed
     from ..io.atomic import write_json
     from ..io.cloud_file import is_cloud_file
     from ..io.fit_result import result_document
     from ..objective import Cloud
     from ..parallel import device_mesh, fit_batch
-    from ..pipeline import check_input, robot_max_capsules
+    from ..pipeline import check_input
     from .fit import _show_input_warning, finished
+    from .robot_options import robot_record
 
     mine = distributed.share(jobs)
     todo = [job for job in mine if not (args.resume and finished(job))]
@@ -118,8 +119,7 @@ def run_batches(args, jobs, skel, skel_file, capsules, config, per_input) -> int
             doc = result_document(skel, skel_file, one, config, args.seed, record)
             if is_cloud_file(path):
                 doc["frame"] = "sensor (the cloud's viewpoint; x right, y down, z forward), metres"
-            doc["skeleton"]["search_lengths"] = bool(args.search_lengths)
-            doc["skeleton"]["max_capsules"] = robot_max_capsules(skel_file, capsules, True)
+            doc["skeleton"].update(robot_record(args, skel_file))
             doc["timing"]["batch"] = {"seconds": seconds, "images": len(part), "devices": int(mesh.devices.size),
                                       "processes": P}
             doc["warnings"] = notes

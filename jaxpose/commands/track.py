@@ -12,7 +12,7 @@ from ..errors import ConfigError, DepthError
 from ..objective import ObjectiveConfig
 from ..search import FitConfig
 from .progress import FrameBar, check_output_path
-from .robot_options import add_max_capsules, check_max_capsules, check_robot_option
+from .robot_options import add_search_options, check_search_options, robot_record
 
 FRAME_EXTENSIONS = (".png", ".npy", ".ply", ".pcd", ".xyz")  # the files a folder input contributes
 VIDEO_EXTENSIONS = (".gif", ".mp4")
@@ -60,10 +60,8 @@ def register(sub) -> None:
                    help="drop the points of up to N largest planes in every frame (default 0)")
     p.add_argument("--max-points", type=int, default=1024, help="points sampled per frame (default 1024)")
     p.add_argument("--scale", type=float, default=None, metavar="S",
-                   help="the subject's global scale when known, e.g. 1 for a robot file (default: searched)")
-    p.add_argument("--search-lengths", action="store_true",
-                   help="robot files (.urdf, MJCF): also search every link length within +-30%%")
-    add_max_capsules(p)
+                   help="the subject's global scale when known (default: searched; 1 for a robot file)")
+    add_search_options(p)
     g = p.add_argument_group("the global search (first frame, recovery, rechecks); as in 'jaxpose fit'")
     g.add_argument("--algorithm", default="ga", help="ga (default), hc, cma_es or another evosax strategy")
     g.add_argument("--population", type=int, default=FitConfig.population)
@@ -408,9 +406,8 @@ def _fps_text(times: list[float]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from ..io.atomic import write_json
-    from ..io.capsules import MAX_CAPSULES
     from ..io.fit_result import file_sha256
-    from ..pipeline import load_fit_skeleton, robot_max_capsules
+    from ..pipeline import load_fit_skeleton
     from ..tracking import Tracker
     from .fit import input_options
     from .track_sequences import check_combinations, run_sequences
@@ -419,8 +416,7 @@ def run(args: argparse.Namespace) -> int:
     if args.sequences is not None:
         return run_sequences(args)
     config = track_config_from_args(args)
-    check_max_capsules(args, args.skeleton)
-    check_robot_option("--search-lengths", args.search_lengths, args.skeleton, "whose links set their own length_range")
+    check_search_options(args)
     if not os.path.isdir(args.out_dir):
         raise ConfigError(f"--out-dir {args.out_dir}: not a directory")
     frames = expand_inputs(args.depth)
@@ -438,8 +434,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_path(summary_path, "--out-dir")
     if args.video:
         check_video(args.video)
-    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
-    capsules = robot_max_capsules(skel_file, MAX_CAPSULES if args.max_capsules is None else args.max_capsules, True)
+    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules, args.search_scale)
+    robot = robot_record(args, skel_file)
     reader = FrameReader(options, stack)
     per_frame = [reader.read(f) for f in frames]  # every frame read and checked before the first search
     tracker = Tracker(skel, config, seed=args.seed)
@@ -462,8 +458,7 @@ def run(args: argparse.Namespace) -> int:
                 tracked_times.append(wall)
             record = _input_record(f, options, k, cloud, stack_sha)
             doc = frame_document(skel, skel_file, result, mode, config, args.seed, record, i, cloud, note)
-            doc["skeleton"]["search_lengths"] = bool(args.search_lengths)
-            doc["skeleton"]["max_capsules"] = capsules
+            doc["skeleton"].update(robot)
             write_json(out, doc)
             entries.append({"input": f.source if f.index is None else f.name,  # the path as given
                             "frame": i, "mode": mode, "cost": doc["cost"], "wall_seconds": wall})

@@ -166,20 +166,18 @@ def run_sequences(args: argparse.Namespace) -> int:
 
     from .. import distributed
     from ..io.atomic import write_json
-    from ..io.capsules import MAX_CAPSULES
     from ..io.fit_result import file_sha256
     from ..objective import Cloud
     from ..parallel import device_mesh, track_batch_chunks
-    from ..pipeline import load_fit_skeleton, robot_max_capsules
+    from ..pipeline import load_fit_skeleton
     from ..tracking import MODES
     from .fit import input_options
     from .fit_batch import agree, largest
-    from .robot_options import check_max_capsules, check_robot_option
+    from .robot_options import check_search_options, robot_record
     from .track import FrameReader, _empty_cloud, _input_record, frame_document, track_config_from_args
 
     config = track_config_from_args(args)
-    check_max_capsules(args, args.skeleton)
-    check_robot_option("--search-lengths", args.search_lengths, args.skeleton, "whose links set their own length_range")
+    check_search_options(args)
     check_devices(args.devices)
     if not os.path.isdir(args.out_dir):
         raise ConfigError(f"--out-dir {args.out_dir}: not a directory")
@@ -187,8 +185,8 @@ def run_sequences(args: argparse.Namespace) -> int:
     every_seq = expand_sequences(args.sequences, args.out_dir, args.depth_scale)
     every = [f.source for s in every_seq for f in (s.frames[:1] if s.stack is not None else s.frames)]  # a stack once
     options = input_options(argparse.Namespace(**{**vars(args), "depth": every}))
-    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules)
-    capsules = robot_max_capsules(skel_file, MAX_CAPSULES if args.max_capsules is None else args.max_capsules, True)
+    skel, skel_file = load_fit_skeleton(args.skeleton, args.search_lengths, args.max_capsules, args.search_scale)
+    robot = robot_record(args, skel_file)
     config = config.validate().for_skeleton(skel)
     P = jax.process_count()
     who = f"process {jax.process_index()} of {P}: " if P > 1 else ""
@@ -252,8 +250,7 @@ def run_sequences(args: argparse.Namespace) -> int:
                     mode = MODES[int(frames.mode[i, t - c0])]
                     record = _input_record(f, options, k, cloud, stack_sha[i])
                     doc = frame_document(skel, skel_file, result, mode, config, args.seed, record, t, cloud, note)
-                    doc["skeleton"]["search_lengths"] = bool(args.search_lengths)
-                    doc["skeleton"]["max_capsules"] = capsules
+                    doc["skeleton"].update(robot)
                     doc["timing"] = timing
                     write_json(os.path.join(folder, f.name + ".json"), doc)
                     entries[i].append({"input": f.source if f.index is None else f.name,  # the path as given

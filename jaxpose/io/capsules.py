@@ -34,6 +34,10 @@ from ..geometry import point_segment_distance
 from ..skeleton import LinkSpec
 
 LENGTH_SEARCH_FRACTION = 0.3  # search_lengths: lengths vary within +-30 %
+# A robot file has its robot's size: the global scale is held at 1 unless searched
+# (search_scale), which a folded pose's short spread misleads (docs/robot_files.md#scale).
+ROBOT_SCALE_RANGE = (1.0, 1.0)
+SEARCHED_SCALE_RANGE = (0.5, 2.0)
 _EPS = 1e-12
 
 

@@ -75,8 +75,8 @@ from ..errors import SkeletonError
 from ..geometry import matrix_to_rpy, quat_to_matrix
 from ..skeleton import LinkSpec, Pose, Skeleton, build_skeleton
 from .capsules import (
-    MAX_CAPSULES, box_shape, capsule_shape, capsule_specs, check_max_capsules, cylinder_shape, ellipsoid_shape,
-    points_shape, sphere_shape,
+    MAX_CAPSULES, ROBOT_SCALE_RANGE, box_shape, capsule_shape, capsule_specs, check_max_capsules, cylinder_shape,
+    ellipsoid_shape, points_shape, sphere_shape,
 )
 
 _MISSING = "MJCF support needs the 'mujoco' extra: pip install 'jaxpose[mujoco]'"
@@ -107,14 +107,15 @@ def compile_mjcf(path):
         raise SkeletonError(f"{path}: MuJoCo cannot compile the model: {msg}") from None
 
 
-def load_mjcf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0),
+def load_mjcf(path, *, search_lengths: bool = False, scale_range=ROBOT_SCALE_RANGE,
               max_capsules: int = MAX_CAPSULES) -> Skeleton:
     """Read an MJCF file as a :class:`~jaxpose.skeleton.Skeleton` (see the module docstring).
 
     Args:
       path: the MJCF ``.xml`` file.
       search_lengths: also search every capsule length within +-30 % (default: fixed).
-      scale_range: search range of the global scale.
+      scale_range: search range of the global scale (default: held at 1, the robot's size;
+        :data:`~jaxpose.io.capsules.SEARCHED_SCALE_RANGE` to search it).
       max_capsules: capsules per body at most (:func:`~jaxpose.io.capsules.link_capsules`); the extra
         ones are fixed child links named ``body#capsule2``, ...; 1: one capsule per body.
 
@@ -130,7 +131,7 @@ def load_mjcf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0),
 
 
 def skeleton_from_model(model, *, source: str = "<mjcf>", search_lengths: bool = False,
-                        scale_range=(0.5, 2.0), name: str | None = None,
+                        scale_range=ROBOT_SCALE_RANGE, name: str | None = None,
                         max_capsules: int = MAX_CAPSULES) -> Skeleton:
     """Build the skeleton of a compiled ``mujoco.MjModel`` (``source`` names it in errors)."""
     specs, _, _ = _plan(model, source, search_lengths, max_capsules=check_max_capsules(max_capsules, source))

@@ -62,7 +62,8 @@ MJCF_EXTENSIONS = (".xml", ".mjcf")
 ROBOT_EXTENSIONS = URDF_EXTENSIONS + MJCF_EXTENSIONS  # robot files: lengths fixed unless searched
 
 
-def load_skeleton(path: str, search_lengths: bool = False, max_capsules: int | None = None) -> Skeleton:
+def load_skeleton(path: str, search_lengths: bool = False, max_capsules: int | None = None,
+                  search_scale: bool = False) -> Skeleton:
     """Read a skeleton from a native ``.toml``/``.json`` file, a ``.urdf`` or an MJCF ``.xml``.
 
     A bare name such as ``"spider"`` loads the shipped skeleton of that name.
@@ -71,6 +72,9 @@ def load_skeleton(path: str, search_lengths: bool = False, max_capsules: int | N
     per link instead.  Raises :class:`~jaxpose.errors.SkeletonError` naming the file
     and the problem.  ``max_capsules`` (robot files only): capsules per link at most
     (:func:`~jaxpose.io.capsules.link_capsules`; default :data:`~jaxpose.io.capsules.MAX_CAPSULES`).
+    A robot file's global scale is held at 1 (its robot's size) unless ``search_scale``
+    (robot files only), which searches it within
+    :data:`~jaxpose.io.capsules.SEARCHED_SCALE_RANGE`; a native file declares ``scale_range``.
     """
     given = str(path)
     path = resolve_skeleton_path(given)
@@ -91,15 +95,22 @@ def load_skeleton(path: str, search_lengths: bool = False, max_capsules: int | N
         from .capsules import check_max_capsules
 
         max_capsules = check_max_capsules(max_capsules, path)
-    capsules = {} if max_capsules is None else {"max_capsules": max_capsules}
+    robot = {} if max_capsules is None else {"max_capsules": max_capsules}
+    if search_scale:
+        from .capsules import SEARCHED_SCALE_RANGE
+
+        robot["scale_range"] = SEARCHED_SCALE_RANGE
     if ext in URDF_EXTENSIONS:
         from .urdf import load_urdf
 
-        return load_urdf(path, search_lengths=search_lengths, **capsules)
+        return load_urdf(path, search_lengths=search_lengths, **robot)
     if ext in MJCF_EXTENSIONS:
         from .mjcf import load_mjcf
 
-        return load_mjcf(path, search_lengths=search_lengths, **capsules)
+        return load_mjcf(path, search_lengths=search_lengths, **robot)
+    if search_scale:
+        raise SkeletonError(f"{path}: searching the scale is an option for robot files (.urdf, MJCF .xml); "
+                            "a native skeleton file sets scale_range instead")
     if search_lengths:
         raise SkeletonError(f"{path}: searching lengths is an option for robot files (.urdf, MJCF .xml); "
                             "a native skeleton file sets each link's length_range instead")

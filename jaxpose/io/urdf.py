@@ -50,22 +50,23 @@ from ..errors import SkeletonError
 from ..geometry import rpy_matrix
 from ..skeleton import LinkSpec, Skeleton, build_skeleton
 from .capsules import (
-    MAX_CAPSULES, Shape, box_shape, capsule_shape, capsule_specs, check_max_capsules, cylinder_shape, points_shape,
-    sphere_shape,
+    MAX_CAPSULES, ROBOT_SCALE_RANGE, Shape, box_shape, capsule_shape, capsule_specs, check_max_capsules, cylinder_shape,
+    points_shape, sphere_shape,
 )
 from .mesh import find_mesh_file, read_mesh_vertices
 
 DEFAULT_MESH_RADIUS = 0.05  # metres: stand-in ball for a mesh that is not read
 
 
-def load_urdf(path, *, search_lengths: bool = False, scale_range=(0.5, 2.0),
+def load_urdf(path, *, search_lengths: bool = False, scale_range=ROBOT_SCALE_RANGE,
               max_capsules: int = MAX_CAPSULES) -> Skeleton:
     """Read a URDF file as a :class:`~jaxpose.skeleton.Skeleton` (see the module docstring).
 
     Args:
       path: the ``.urdf`` file.
       search_lengths: also search every capsule length within +-30 % (default: fixed).
-      scale_range: search range of the global scale.
+      scale_range: search range of the global scale (default: held at 1, the robot's size;
+        :data:`~jaxpose.io.capsules.SEARCHED_SCALE_RANGE` to search it).
       max_capsules: capsules per link at most (:func:`~jaxpose.io.capsules.link_capsules`); the extra ones are fixed
         child links named ``link#capsule2``, ...; 1: one capsule per link.
 

@@ -176,6 +176,17 @@ def test_search_lengths_option():
     assert sum(n.endswith(".length") for n in genome_layout(skel).names) == 12
 
 
+def test_scale_held_at_one_unless_searched():
+    """An MJCF model has its robot's size: the scale range is exactly 1 unless searched."""
+    from jaxpose.io.capsules import SEARCHED_SCALE_RANGE
+    from jaxpose.io.skeleton_file import load_skeleton
+
+    _, skel = model_and_skeleton("ant")
+    assert (float(skel.scale_lo), float(skel.scale_hi)) == (1.0, 1.0)
+    searched = load_skeleton(fixture("ant"), search_scale=True)
+    assert (float(searched.scale_lo), float(searched.scale_hi)) == SEARCHED_SCALE_RANGE
+
+
 # --------------------------------------------------------------------------- kinematics against MuJoCo
 
 

@@ -361,6 +361,21 @@ def test_load_skeleton_search_lengths_for_robot_files_only(tmp_path):
         load_skeleton("spider", search_lengths=True)
 
 
+def test_robot_scale_held_at_one_unless_searched():
+    """A robot file has its robot's size: the scale range is exactly 1 unless ``search_scale``
+    (the search range then), which a native file refuses (it sets scale_range)."""
+    from jaxpose.io.capsules import SEARCHED_SCALE_RANGE
+    from jaxpose.io.skeleton_file import load_skeleton
+
+    held = load_skeleton(fixture("arm7"))
+    assert (float(held.scale_lo), float(held.scale_hi)) == (1.0, 1.0)
+    searched = load_skeleton(fixture("arm7"), search_scale=True)
+    assert (float(searched.scale_lo), float(searched.scale_hi)) == SEARCHED_SCALE_RANGE
+    assert load_urdf(fixture("arm7"), scale_range=(0.7, 1.4)).scale_hi == pytest.approx(1.4)
+    with pytest.raises(SkeletonError, match="searching the scale is an option for robot files"):
+        load_skeleton("spider", search_scale=True)
+
+
 def test_prismatic_and_spherical_joints(tmp_path):
     skel = load_urdf(fixture("gripper"), max_capsules=1)
     assert skel.joint_types == ("fixed", "hinge", "slide", "hinge", "slide", "slide")
