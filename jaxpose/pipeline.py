@@ -191,6 +191,9 @@ def _sampling_record(options: InputOptions, cloud: Cloud) -> dict:
 
 
 SCALE_MARGIN = 1.5  # how far outside the skeleton's scale range a cloud's size is only warned about
+# a held scale (a robot file's) has no range to absorb the pose: folded robots spread down to 0.67
+# times their rest spread (docs/experiments.md, "The scale warning's margin")
+HELD_SCALE_MARGIN = 1.5
 
 
 def unused_depth_scale(options: InputOptions, scaled: bool, source: str) -> str | None:
@@ -209,14 +212,15 @@ def scale_warning(skel: Skeleton, cloud: Cloud, source: str) -> str | None:
     than metres; ``None`` otherwise.
 
     The size is the cloud's RMS spread against the rest-pose model's (the scale the search
-    starts from).  The margin leaves room for poses and partial views and still catches
+    starts from); a held scale (``scale_lo == scale_hi``) gets :data:`HELD_SCALE_MARGIN` more.  The margin leaves room for poses and partial views and still catches
     millimetres read as metres (1000x) or a depth image written at 5000 units per metre and
     read as millimetres (5x) (see docs/experiments.md)."""
     from .rest_model import rest_model
 
     ratio = float(cloud_spread(cloud) / rest_model(skel).spread)
     lo, hi = float(skel.scale_lo), float(skel.scale_hi)
-    if lo / SCALE_MARGIN <= ratio <= hi * SCALE_MARGIN:
+    margin = SCALE_MARGIN * (HELD_SCALE_MARGIN if lo == hi else 1.0)
+    if lo / margin <= ratio <= hi * margin:
         return None
     return (f"{source}: the points spread {ratio:.3g} times as wide as skeleton {skel.name!r} at rest, far outside "
             f"its scale range {lo:g} .. {hi:g}, so the fit will sit at the range's edge; check the unit (a depth "

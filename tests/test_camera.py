@@ -213,3 +213,28 @@ def test_scale_warning_catches_a_cloud_in_the_wrong_unit():
         msg = scale_warning(skel, big, "demo.png")
         assert msg.startswith("demo.png: the points spread") and "scale range 0.5 .. 2" in msg and "unit" in msg
     assert scale_warning(skel, Cloud(cloud.points * 1.8, cloud.weights), "demo.png") is None  # a big spider
+
+
+def test_scale_warning_leaves_a_held_scale_room_for_the_pose():
+    """A held scale (a robot file's, scale range one value) has no range to absorb a folded
+    pose's short spread: 0.6 or 1.6 times the spread at that scale passes, a unit off by 5 does not."""
+    import dataclasses
+    import os
+
+    import jax.numpy as jnp
+
+    from jaxpose.demo import DATA
+    from jaxpose.io.skeleton_file import load_skeleton
+    from jaxpose.objective import Cloud
+    from jaxpose.objective.cloud import cloud_spread
+    from jaxpose.pipeline import InputOptions, load_observation, scale_warning
+    from jaxpose.rest_model import rest_model
+
+    skel = load_skeleton("spider")
+    image, background = (os.path.join(DATA, f"spider_demo{s}.png") for s in ("", "_background"))
+    _, _, cloud = load_observation(image, InputOptions(background=background))
+    s = jnp.float32(cloud_spread(cloud) / rest_model(skel).spread)  # the cloud's own size, held
+    held = dataclasses.replace(skel, scale_lo=s, scale_hi=s)
+    for factor, warned in ((0.6, False), (1.6, False), (5.0, True), (0.2, True)):
+        got = scale_warning(held, Cloud(cloud.points * factor, cloud.weights), "demo.png")
+        assert (got is not None) == warned, (factor, got)
