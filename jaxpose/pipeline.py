@@ -212,7 +212,8 @@ def scale_warning(skel: Skeleton, cloud: Cloud, source: str) -> str | None:
     than metres; ``None`` otherwise.
 
     The size is the cloud's RMS spread against the rest-pose model's (the scale the search
-    starts from); a held scale (``scale_lo == scale_hi``) gets :data:`HELD_SCALE_MARGIN` more.  The margin leaves room for poses and partial views and still catches
+    starts from); a held scale (``scale_lo == scale_hi``) gets :data:`HELD_SCALE_MARGIN` more.
+    The margin leaves room for poses and partial views and still catches
     millimetres read as metres (1000x) or a depth image written at 5000 units per metre and
     read as millimetres (5x) (see docs/experiments.md)."""
     from .rest_model import rest_model
