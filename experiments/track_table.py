@@ -197,6 +197,8 @@ def main(argv=None) -> int:
     ap.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
                     help="a TrackConfig setting (repeatable; fit.NAME for the global search's)")
     ap.add_argument("--no-baselines", action="store_true", help="track only (no fits from scratch): for tuning")
+    ap.add_argument("--gap-only", action="store_true",
+                    help="only the sequences with a gap (the subject leaves, returns): what re-initialising changes")
     args = ap.parse_args(argv)
     if args.no_baselines:
         args.full_every = 0
@@ -209,6 +211,8 @@ def main(argv=None) -> int:
         log(f"{model}: {len(seqs)} sequences rendered in {time.time() - t0:.0f} s")
         cfg = config.for_skeleton(skel)
         for seq in seqs:
+            if args.gap_only and not seq.meta.get("gap"):
+                continue
             scratch = None if args.no_baselines else same_budget(skel, cfg)
             frames, same, full = run_sequence(skel, seq, cfg, args.seed, scratch, args.full_every)
             row = summarise(seq.name, frames, same, full, seq.meta.get("gap"))

@@ -72,6 +72,10 @@ class TrackConfig:
     lengths, since bones keep their length; 0: searched over the skeleton's ranges and
     predicted with the motion's velocity, where a short end link drifted to the end of its
     range: docs/tracking.md, "Lengths held")."""
+    keep_scale: bool = True
+    """A re-initialisation (the global search after a lost frame, a cost jump or a recheck, once a
+    frame was fitted) keeps the subject's scale within ``scale_window`` of the last fitted
+    frame's; its lengths are searched again (docs/tracking.md, "Re-initialisations keep the scale")."""
     min_points: int = 50
     """A frame with fewer points than this is lost: the subject is not in view."""
     loss_ratio: float = 1.6

@@ -7,7 +7,8 @@ the last frame was fitted, the motion model predicts this frame's pose and the
 local search (:func:`~jaxpose.tracking.local.local_fit`) fits it (*tracked*).  When
 there is no last pose, or the tracked cost exceeds ``loss_ratio`` times the recent
 cost, the global search (:func:`~jaxpose.search.fit`) fits the frame (*global*) and
-the better of the two results is kept.  When ``recheck_every`` frames have passed since
+the better of the two results is kept; once a frame was fitted, that search keeps the
+subject's scale (:func:`subject_skeleton`).  When ``recheck_every`` frames have passed since
 the global search last ran, it runs beside the local one too (a recheck), the better
 result kept.
 
@@ -22,6 +23,7 @@ global search run only on the frames where some sequence of the batch needs it.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import NamedTuple
 
@@ -36,7 +38,7 @@ from ..search import FitResult, Fitter, fit
 from ..search.sweep import SWEEP_REFINE_TOP, sweep_masks
 from ..skeleton import Pose, Skeleton
 from .config import TrackConfig
-from .local import local_fit
+from .local import SCALE, local_fit
 
 GLOBAL, TRACKED, LOST = 0, 1, 2
 MODES = ("global", "tracked", "lost")  # TrackFrame.mode's names
@@ -83,6 +85,21 @@ def predict(skel: Skeleton, config: TrackConfig, state: TrackState) -> tuple[Pos
     angles = jnp.clip(pred.angles, skel.angle_lo, skel.angle_hi)
     lengths = last.lengths if config.length_window else jnp.clip(pred.lengths, skel.length_lo, skel.length_hi)
     return pred._replace(root_rpy=matrix_to_rpy(R), angles=angles, lengths=lengths, scale=last.scale), last
+
+
+def subject_skeleton(skel: Skeleton, config: TrackConfig, state: TrackState) -> Skeleton:
+    """The skeleton the global search fits: ``skel``, or, with ``config.keep_scale`` once a frame
+    was fitted (the last pose's scale is then positive), its scale range narrowed to
+    ``scale_window`` about the last fitted frame's (the subject that comes back is the same size;
+    its lengths are searched again: docs/tracking.md, "Re-initialisations keep the scale")."""
+    if not config.keep_scale:
+        return skel
+    s = state.pose[SCALE]
+    known = s > 0
+    lo = jnp.clip(s / config.scale_window, skel.scale_lo, skel.scale_hi)
+    hi = jnp.clip(s * config.scale_window, lo, skel.scale_hi)
+    return dataclasses.replace(skel, scale_lo=jnp.where(known, lo, skel.scale_lo),
+                               scale_hi=jnp.where(known, hi, skel.scale_hi))
 
 
 def change(old: jax.Array, new: jax.Array) -> jax.Array:
@@ -193,7 +210,8 @@ def track_step(skel: Skeleton, config: TrackConfig, state: TrackState, cloud: Cl
     (:meth:`TrackConfig.for_skeleton`); pure and jit-compatible (``config`` static)."""
     cloud = _as_cloud(cloud)
     p = _local_part(skel, config, state, cloud)
-    glob = jax.lax.cond(p.run_global, lambda: _wall0(fit(cloud, skel, p.key, config.fit)),
+    glob = jax.lax.cond(p.run_global,
+                        lambda: _wall0(fit(cloud, subject_skeleton(skel, config, state), p.key, config.fit)),
                         lambda: _nan_result(skel, config))
     return _finish_part(config, state, p, glob)
 
@@ -244,9 +262,11 @@ def track_batched_from(states: TrackState, clouds: Cloud, skeleton: Skeleton,
         p = jax.vmap(lambda s, c: _local_part(skeleton, config, s, c))(states, cloud)
         nothing = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (len(p.key), *x.shape)),
                                          _nan_result(skeleton, config))
-        glob = jax.lax.cond(jnp.any(p.run_global),
-                            lambda: jax.vmap(lambda c, k: _wall0(fit(c, skeleton, k, config.fit)))(cloud, p.key),
-                            lambda: nothing)
+        def global_fits():
+            skels = jax.vmap(lambda s: subject_skeleton(skeleton, config, s))(states)
+            return jax.vmap(lambda c, sk, k: _wall0(fit(c, sk, k, config.fit)))(cloud, skels, p.key)
+
+        glob = jax.lax.cond(jnp.any(p.run_global), global_fits, lambda: nothing)
         return jax.vmap(lambda s, q, g: _finish_part(config, s, q, g))(states, p, glob)
 
     time_major = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), _as_cloud(clouds))
@@ -256,6 +276,7 @@ def track_batched_from(states: TrackState, clouds: Cloud, skeleton: Skeleton,
 
 _local_jit = jax.jit(_local_part, static_argnames="config")
 _finish_jit = jax.jit(_finish_part, static_argnames="config")
+_subject_jit = jax.jit(subject_skeleton, static_argnames="config")
 
 
 class Tracker:
@@ -293,7 +314,10 @@ class Tracker:
         p = _local_jit(self.skeleton, self.config, self.state, cloud)
         glob = self._none
         if bool(p.run_global):
-            glob = self.fitter.run(cloud, p.key, progress)
+            fitter = self.fitter  # the programs are compiled once: a narrowed skeleton reuses them
+            if self.config.keep_scale:
+                fitter = Fitter(_subject_jit(self.skeleton, self.config, self.state), self.config.fit)
+            glob = fitter.run(cloud, p.key, progress)
         self.state, frame = jax.block_until_ready(_finish_jit(self.config, self.state, p, glob))
         self.last = frame._replace(result=frame.result._replace(
             wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32)))

@@ -129,15 +129,49 @@ def global_fit(skel, cloud, t: int):
     return fit_jit(cloud, skel, key, CFG.for_skeleton(skel).fit)
 
 
+def scaled(skel, pose):
+    """The skeleton a re-initialisation searches (TrackConfig.keep_scale), recomputed in NumPy: the
+    scale range narrowed to scale_window about ``pose``'s scale, the rest the skeleton's."""
+    s, w = float(pose.scale), CFG.scale_window
+    lo, hi = float(skel.scale_lo), float(skel.scale_hi)
+    s_lo = min(max(s / w, lo), hi)
+    return dataclasses.replace(skel, scale_lo=jnp.float32(s_lo), scale_hi=jnp.float32(min(max(s * w, s_lo), hi)))
+
+
 @pytest.mark.parametrize("t", [0, T + 1])
 def test_global_frames_are_the_per_frame_fit(skel, motion, tracked, t):
-    """Frame 0 and the first frame after a lost one are the global search's fit of that frame alone."""
-    want = global_fit(skel, motion[0][t], t)
+    """Frame 0 is the global search's fit of that frame alone; the first frame after a lost one
+    is that fit with the scale of the last fitted frame (T - 1) kept."""
+    fitted = skel if t == 0 else scaled(skel, frame(tracked, T - 1).result.pose)
+    if t:
+        assert float(fitted.scale_hi) < float(skel.scale_hi) and float(fitted.scale_lo) > float(skel.scale_lo)
+    want = global_fit(fitted, motion[0][t], t)
     got = frame(tracked, t)
     assert int(got.mode) == GLOBAL
     np.testing.assert_allclose(np.asarray(got.result.links.end), np.asarray(want.links.end), atol=1e-4)
     np.testing.assert_allclose(float(got.result.cost), float(want.cost), rtol=1e-4)
     np.testing.assert_allclose(np.asarray(got.result.history), np.asarray(want.history), rtol=1e-4)
+
+
+def test_subject_skeleton_keeps_the_last_fitted_scale(skel, tracked):
+    """Before any fitted frame, or with keep_scale off, the global search gets the skeleton's own
+    ranges; after one, the scale window about that frame's scale (``scaled``)."""
+    from jaxpose.tracking import initial_state
+    from jaxpose.tracking.step import subject_skeleton
+
+    def ranges(sk):
+        return [np.asarray(a) for a in (sk.scale_lo, sk.scale_hi, sk.length_lo, sk.length_hi)]
+
+    fresh = initial_state(skel, jax.random.key(0))
+    for got, want in zip(ranges(subject_skeleton(skel, CFG, fresh)), ranges(skel)):
+        np.testing.assert_array_equal(got, want)
+    last = frame(tracked, T - 1).result.pose
+    state = initial_state(skel, jax.random.key(0), init=last)
+    for got, want in zip(ranges(subject_skeleton(skel, CFG, state)), ranges(scaled(skel, last))):
+        np.testing.assert_allclose(got, want, rtol=1e-6)
+    off = dataclasses.replace(CFG, keep_scale=False)
+    for got, want in zip(ranges(subject_skeleton(skel, off, state)), ranges(skel)):
+        np.testing.assert_array_equal(got, want)
 
 
 def test_a_frame_without_the_subject_is_lost(tracked):
@@ -226,16 +260,21 @@ def test_a_jump_in_cost_reinitialises(skel):
     assert list(modes[:4]) == [GLOBAL, TRACKED, TRACKED, GLOBAL], modes
     assert float(frames.tracked_cost[3]) > CFG.loss_ratio * float(frames.result.cost[2])
     assert float(frames.result.cost[3]) < float(frames.tracked_cost[3])
-    want = global_fit(skel, clouds[3], 3)
+    want = global_fit(scaled(skel, frame(frames, 2).result.pose), clouds[3], 3)  # the subject's scale kept
     np.testing.assert_allclose(np.asarray(frames.result.links.end[3]), np.asarray(want.links.end), atol=1e-4)
+
+
+# the recheck tests' cases (a global fit cheaper or not, by less than a margin) are set up with the
+# global search over the skeleton's whole ranges; the kept scale has tests of its own (above)
+CFG_R = dataclasses.replace(CFG, keep_scale=False)
 
 
 def _run_pair(skel, clouds, init=None):
     """The same frames through a Tracker without rechecks and one with ``recheck_every=2``:
     ``(plain results, plain modes, rechecked results, rechecked modes)``."""
     key = jax.random.key(3)
-    plain = Tracker(skel, CFG, key=key, init=init)
-    rechecked = Tracker(skel, dataclasses.replace(CFG, recheck_every=2), key=key, init=init)
+    plain = Tracker(skel, CFG_R, key=key, init=init)
+    rechecked = Tracker(skel, dataclasses.replace(CFG_R, recheck_every=2), key=key, init=init)
     out = ([], [], [], [])
     for c in clouds:
         out[0].append(plain.update(c))
@@ -316,11 +355,11 @@ def test_a_recheck_within_its_margin_changes_nothing(skel, motion):
     clouds, truth = motion
     start = truth[0]._replace(root_rpy=truth[0].root_rpy + jnp.asarray([np.pi, 0.0, 0.0], jnp.float32))
     key = jax.random.key(3)
-    plain = Tracker(skel, CFG, key=key, init=start)
+    plain = Tracker(skel, CFG_R, key=key, init=start)
     want = [plain.update(c) for c in clouds[:4]]
     saving = 1.0 - float(_recheck_oracle(skel, clouds[2], 2).cost) / float(want[2].cost)
     assert 0.0 < saving < 0.9  # the case under test: the global fit is cheaper, by less than the margin
-    margined = Tracker(skel, dataclasses.replace(CFG, recheck_every=2, recheck_margin=0.9), key=key, init=start)
+    margined = Tracker(skel, dataclasses.replace(CFG_R, recheck_every=2, recheck_margin=0.9), key=key, init=start)
     for t, c in enumerate(clouds[:4]):
         got = margined.update(c)
         assert margined.mode == ("global" if t == 2 else "tracked"), (t, margined.mode)
