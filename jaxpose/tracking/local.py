@@ -46,6 +46,12 @@ class LocalFit(NamedTuple):
     history: jax.Array  # (generations,)
 
 
+def window(value, lo, hi, factor):
+    """``(lo, hi)``: within ``factor`` of ``value`` either way, inside ``lo .. hi`` (never empty)."""
+    w_lo = jnp.maximum(lo, value / factor)
+    return w_lo, jnp.maximum(jnp.minimum(hi, value * factor), w_lo)
+
+
 def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
     """Gene ranges around the prediction ``pred`` (the root's angles: a turn relative to
     its orientation, :func:`~jaxpose.genome.held_bounds`; the scale within ``scale_window``
@@ -61,8 +67,8 @@ def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:
         windows.append((genes, pred.lengths[links], skel.length_lo[links], skel.length_hi[links],
                         config.length_window))
     for idx, value, v_lo, v_hi, w in windows:
-        w_lo = jnp.maximum(v_lo, value / w)
-        lo, hi = lo.at[idx].set(w_lo), hi.at[idx].set(jnp.maximum(jnp.minimum(v_hi, value * w), w_lo))
+        w_lo, w_hi = window(value, v_lo, v_hi, w)
+        lo, hi = lo.at[idx].set(w_lo), hi.at[idx].set(w_hi)
     if config.fit.scale is not None:  # known: held, as in the global search
         lo, hi = lo.at[SCALE].set(config.fit.scale), hi.at[SCALE].set(config.fit.scale)
     return b._replace(lo=lo, hi=hi)

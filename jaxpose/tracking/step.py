@@ -38,7 +38,7 @@ from ..search import FitResult, Fitter, fit
 from ..search.sweep import SWEEP_REFINE_TOP, sweep_masks
 from ..skeleton import Pose, Skeleton
 from .config import TrackConfig
-from .local import SCALE, local_fit
+from .local import SCALE, local_fit, window
 
 GLOBAL, TRACKED, LOST = 0, 1, 2
 MODES = ("global", "tracked", "lost")  # TrackFrame.mode's names
@@ -96,8 +96,7 @@ def subject_skeleton(skel: Skeleton, config: TrackConfig, state: TrackState) -> 
         return skel
     s = state.pose[SCALE]
     known = s > 0
-    lo = jnp.clip(s / config.scale_window, skel.scale_lo, skel.scale_hi)
-    hi = jnp.clip(s * config.scale_window, lo, skel.scale_hi)
+    lo, hi = window(s, skel.scale_lo, skel.scale_hi, config.scale_window)
     return dataclasses.replace(skel, scale_lo=jnp.where(known, lo, skel.scale_lo),
                                scale_hi=jnp.where(known, hi, skel.scale_hi))
 
@@ -295,7 +294,6 @@ class Tracker:
         self.init = init
         self.config = config.validate().for_skeleton(skeleton)
         self.key = jax.random.key(seed) if key is None else key
-        self.fitter = Fitter(skeleton, self.config.fit)
         self._none = _nan_result(skeleton, self.config)
         self.reset()
 
@@ -314,10 +312,9 @@ class Tracker:
         p = _local_jit(self.skeleton, self.config, self.state, cloud)
         glob = self._none
         if bool(p.run_global):
-            fitter = self.fitter  # the programs are compiled once: a narrowed skeleton reuses them
-            if self.config.keep_scale:
-                fitter = Fitter(_subject_jit(self.skeleton, self.config, self.state), self.config.fit)
-            glob = fitter.run(cloud, p.key, progress)
+            # the programs are compiled once: a narrowed skeleton (keep_scale) reuses them
+            skel = _subject_jit(self.skeleton, self.config, self.state)
+            glob = Fitter(skel, self.config.fit).run(cloud, p.key, progress)
         self.state, frame = jax.block_until_ready(_finish_jit(self.config, self.state, p, glob))
         self.last = frame._replace(result=frame.result._replace(
             wall_time=jnp.asarray(time.perf_counter() - t0, jnp.float32)))
