@@ -92,6 +92,12 @@ class Bounds(NamedTuple):
     turned: jax.Array | None = None  # () bool
 
 
+def window(value, lo, hi, factor):
+    """``(lo, hi)``: within ``factor`` of ``value`` either way, inside ``lo .. hi`` (never empty)."""
+    w_lo = jnp.maximum(lo, value / factor)
+    return w_lo, jnp.maximum(jnp.minimum(hi, value * factor), w_lo)
+
+
 def held_bounds(bounds: Bounds, rpy, window, held) -> Bounds:
     """``bounds`` with the root's orientation held within ``window`` radians (about each axis)
     of the orientation ``rpy (3,)`` where ``held`` (traced), unchanged elsewhere."""

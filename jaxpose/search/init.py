@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..genome import Bounds, encode, genome_bounds, genome_layout, held_bounds, root_rpy_values
+from ..genome import Bounds, encode, genome_bounds, genome_layout, held_bounds, root_rpy_values, window
 from ..geometry import axis_angle_matrix, matrix_to_rpy, rpy_matrix
 from ..objective import Observation, cloud_centre, cloud_spread
 from ..rest_model import RestModel, principal_axes, rest_model
@@ -76,9 +76,7 @@ def search_bounds(skel: Skeleton, obs: Observation, config: FitConfig, rest: Res
         s = jnp.asarray(config.scale, jnp.float32)
         bounds = Bounds(bounds.lo.at[i].set(s), bounds.hi.at[i].set(s))
     elif config.scale_window:
-        s0 = initial_scale(skel, obs, rest)
-        lo = jnp.maximum(skel.scale_lo, s0 / config.scale_window)
-        hi = jnp.maximum(jnp.minimum(skel.scale_hi, s0 * config.scale_window), lo)
+        lo, hi = window(initial_scale(skel, obs, rest), skel.scale_lo, skel.scale_hi, config.scale_window)
         bounds = Bounds(bounds.lo.at[i].set(lo), bounds.hi.at[i].set(hi))
     if params is not None:
         bounds = held_bounds(bounds, params.root_rpy, params.root_window, params.root_window > 0)

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..genome import Bounds, decode, encode, genome_bounds, genome_layout, held_bounds
+from ..genome import Bounds, decode, encode, genome_bounds, genome_layout, held_bounds, window
 from ..kinematics import Links, forward_kinematics
 from ..objective import Cloud, Observation, observe
 from ..search.config import FitConfig
@@ -44,12 +44,6 @@ class LocalFit(NamedTuple):
     links: Links
     cost: jax.Array
     history: jax.Array  # (generations,)
-
-
-def window(value, lo, hi, factor):
-    """``(lo, hi)``: within ``factor`` of ``value`` either way, inside ``lo .. hi`` (never empty)."""
-    w_lo = jnp.maximum(lo, value / factor)
-    return w_lo, jnp.maximum(jnp.minimum(hi, value * factor), w_lo)
 
 
 def local_bounds(skel: Skeleton, config: TrackConfig, pred: Pose) -> Bounds:

@@ -30,7 +30,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..genome import genome_layout, pose_to_vector, vector_to_pose
+from ..genome import genome_layout, pose_to_vector, vector_to_pose, window
 from ..geometry import matrix_to_rpy, rpy_matrix
 from ..kinematics import forward_kinematics
 from ..objective import Cloud
@@ -38,7 +38,7 @@ from ..search import FitResult, Fitter, fit
 from ..search.sweep import SWEEP_REFINE_TOP, sweep_masks
 from ..skeleton import Pose, Skeleton
 from .config import TrackConfig
-from .local import SCALE, local_fit, window
+from .local import SCALE, local_fit
 
 GLOBAL, TRACKED, LOST = 0, 1, 2
 MODES = ("global", "tracked", "lost")  # TrackFrame.mode's names
