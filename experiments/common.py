@@ -9,7 +9,8 @@ files and number formats in ``outputs.py``):
 - configurations: :func:`make_config` (FitConfig defaults plus overrides),
   :func:`planned_evaluations` / :func:`match_generations` (evaluation budgets),
   :func:`run_fingerprint` (what a stored run depends on);
-- one fit, scored: :func:`fit_image`;
+- one fit, scored: :func:`fit_image`; a found pose against the truth: :func:`pose_costs`,
+  :func:`miss_verdict`;
 - the resumable run store: :class:`RunStore` (one JSON file per finished fit) and
   :class:`FitRunner` (skips stored fits, warms the compiler up once per config);
 - the machine a fit ran on: :func:`machine_info` (``machine.py``'s, with the code's fingerprint);
@@ -312,6 +313,39 @@ def fit_image(ds: Dataset, img: Image, config: FitConfig, seed: int) -> dict:
         "machine": machine_id(),
         "finished": now_iso(),
     }
+
+
+def pose_costs(cloud, skel: Skeleton, config: FitConfig, posed) -> tuple[np.ndarray, dict]:
+    """The objective of a fit of ``config`` (the same terms and weights as its ``result.cost``)
+    for posed capsules ``posed`` = ``[(start, end, radius), ...]`` (each ``(L, 3), (L, 3), (L,)``,
+    the cloud's frame) on ``cloud``: ``(costs (P,), {term: (P,)})``.  The diagnosis of a miss weighs
+    the found pose against the truth with it (docs/experiments.md, "Hard poses: the diagnosis")."""
+    import jax.numpy as jnp
+
+    from jaxpose.objective import collision_cost, data_cost, free_space_cost, observe, population_cost
+    from jaxpose.search.cost import objective_pairs
+
+    obj = config.for_skeleton(skel).objective
+    obs = observe(cloud, obj)
+    pairs = objective_pairs(skel, obj)
+    s, e, r = (jnp.asarray(np.stack([np.asarray(p[i], np.float64) for p in posed]), jnp.float32) for i in range(3))
+    costs = np.asarray(population_cost(obs, s, e, r, obj, pairs=pairs), np.float64)
+    terms = {"data": data_cost(obs.cloud, obs.sigma, s, e, r, obj.block)}
+    if obj.free_space_weight != 0:
+        terms["free_space"] = obj.free_space_weight * free_space_cost(obs.fmap, obs.sigma, s, e,
+                                                                      obj.free_space_samples, r)
+    if pairs is not None:
+        terms["collision"] = obj.collision_weight * collision_cost(pairs, obs.sigma, s, e, r, obj.collision_margin)
+    return costs, {k: np.asarray(v, np.float64) for k, v in terms.items()}
+
+
+COST_MARGIN = 0.002  # a found pose this much above the truth's cost: a search failure (a better optimum exists)
+VISIBLE = 0.5  # a link with at least this visible fraction is one the camera sees
+
+
+def miss_verdict(found_cost: float, truth_cost: float, margin: float = COST_MARGIN) -> str:
+    """``"search"`` when the found pose costs more than the truth by ``margin`` or more, else ``"objective"``."""
+    return "search" if found_cost > truth_cost + margin else "objective"
 
 
 # --------------------------------------------------------------------------- run store

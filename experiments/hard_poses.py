@@ -60,6 +60,8 @@ for _p in (ROOT, HERE):
 
 import jax.numpy as jnp
 import numpy as np
+from common import COST_MARGIN, VISIBLE, pose_costs
+from common import miss_verdict as classify  # noqa: F401  (the verdict of a miss, shared with mujoco_views.py)
 
 import jaxpose
 from jaxpose import datasets as D
@@ -86,8 +88,6 @@ MAX_TRIES = 200
 CLUTTER = 3
 MUJOCO_SIZE = (640, 480)
 
-COST_MARGIN = 0.002  # found cost above the truth's by this much: a search failure (as in experiments.md)
-VISIBLE = 0.5  # a link with at least this visible fraction is one the camera sees
 PENETRATION = 0.01  # metres: a fitted link sinking this far into others is interpenetrating
 ORIGIN_TOL = 0.10  # metres
 WHOLE_BODY_MISS = 0.25  # an image with PCP under this is a whole-body miss
@@ -181,59 +181,6 @@ def humanoid_samples(set_name: str, seed: int, count: int) -> list:
 # --------------------------------------------------------------------------- MuJoCo's renderer
 
 
-def mujoco_interpenetration(m, d) -> float:
-    """Total penetration depth (metres) of MuJoCo's contacts between the model's own geoms."""
-    import mujoco
-
-    mujoco.mj_forward(m, d)
-    total = 0.0
-    for c in d.contact[: d.ncon]:
-        if m.geom_bodyid[c.geom1] > 0 and m.geom_bodyid[c.geom2] > 0:
-            total += max(0.0, -float(c.dist))
-    return total
-
-
-def link_bodies(m, skel: Skeleton) -> np.ndarray:
-    """MuJoCo body id of every skeleton link (``body``, ``body#capsuleN``, ``body/joint``)."""
-    return np.array([m.body(n.split("/")[0].split("#")[0]).id for n in skel.link_names])
-
-
-def visible_fraction(start, end, radius, link_body, pixel_body, clean, k, samples: int = 9, tol: float = 0.01):
-    """:func:`jaxpose.datasets.link_visibility` with MuJoCo's segmentation: a point along a link's axis is
-    visible when its pixel shows the link's body, or anything not in front of it."""
-    from jaxpose.camera import project
-
-    s, e, r = (np.asarray(a, np.float64) for a in (start, end, radius))
-    p = s[:, None] + np.linspace(0, 1, samples)[None, :, None] * (e - s)[:, None]
-    uv = np.round(project(p, k)).astype(int)
-    H, W = clean.shape
-    inside = (uv[..., 0] >= 0) & (uv[..., 0] < W) & (uv[..., 1] >= 0) & (uv[..., 1] < H) & (p[..., 2] > 0)
-    u, v = np.clip(uv[..., 0], 0, W - 1), np.clip(uv[..., 1], 0, H - 1)
-    seen = clean[v, u]
-    own = pixel_body[v, u] == np.asarray(link_body)[:, None]
-    return (inside & (seen > 0) & (own | (seen >= p[..., 2] - r[:, None] - tol))).mean(1)
-
-
-def segmentation_bodies(renderer, m, d, cam) -> np.ndarray:
-    """The MuJoCo body seen at every pixel (-1: none or not a geom), every geom group drawn."""
-    import mujoco
-
-    opt = mujoco.MjvOption()
-    opt.geomgroup[:] = 1
-    opt.sitegroup[:] = 0
-    opt.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = 0
-    renderer.enable_segmentation_rendering()
-    try:
-        renderer.update_scene(d, camera=cam, scene_option=opt)
-        seg = renderer.render()
-    finally:
-        renderer.disable_segmentation_rendering()
-        renderer.enable_depth_rendering()
-    ids, types = seg[..., 0], seg[..., 1]
-    is_geom = (types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids >= 0)
-    return np.where(is_geom, np.asarray(m.geom_bodyid)[np.clip(ids, 0, m.ngeom - 1)], -1)
-
-
 def mujoco_samples(seed: int, count: int, path: str = MUJOCO_MODEL) -> tuple[list, Skeleton, dict]:
     """``count`` images of the MJCF humanoid by MuJoCo's renderer: qpos uniform over the ranges,
     random azimuth, elevation uniform in 0-60 degrees.  Returns ``(samples, skeleton, index extra)``."""
@@ -247,29 +194,19 @@ def mujoco_samples(seed: int, count: int, path: str = MUJOCO_MODEL) -> tuple[lis
     d = mujoco.MjData(m)
     renderer = mujoco.Renderer(m, MUJOCO_SIZE[1], MUJOCO_SIZE[0])
     renderer.enable_depth_rendering()
-    bodies = link_bodies(m, skel)
+    bodies = MV.link_bodies(m, skel)
     out = []
     try:
         for i in range(count):
             rng = np.random.default_rng([seed, 29, SETS.index("mujoco"), i])
-            best = (None, np.inf, 0)
-            for t in range(1, MAX_TRIES + 1):
-                q = MV.random_qpos(m, rng, None)  # uniform over every joint's range
-                d.qpos[:] = q
-                c = mujoco_interpenetration(m, d)
-                if c < best[1]:
-                    best = (q, c, t)
-                if c <= MAX_INTERPENETRATION:
-                    break
-            q, collision, tries = best
-            d.qpos[:] = q
+            q, collision, tries = MV.draw_qpos(m, d, rng, None, max_tries=MAX_TRIES, limit=MAX_INTERPENETRATION)
             mujoco.mj_forward(m, d)
             cam, k = MV.camera_view(m, d, rng, *MUJOCO_SIZE)
             cam.azimuth = float(rng.uniform(0, 360))
             cam.elevation = -float(rng.uniform(*ELEVATION_DEG))
             depth, centre, Rcw = MV.render_depth(renderer, m, d, cam)
             background, _, _ = MV.render_depth(renderer, m, d, cam, hide_model=True)
-            pixel_body = segmentation_bodies(renderer, m, d, cam)
+            pixel_body = MV.segmentation_bodies(renderer, m, d, cam)
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = Rcw, -Rcw @ centre
             pose_world = to_pose(d.qpos)
@@ -277,7 +214,7 @@ def mujoco_samples(seed: int, count: int, path: str = MUJOCO_MODEL) -> tuple[lis
             links = forward_kinematics(skel, pose_cam)
             start, end, radius = (np.asarray(a, np.float32) for a in (links.start, links.end, links.radius))
             clean = np.nan_to_num(depth).astype(np.float32)
-            vis = visible_fraction(start, end, radius, bodies, pixel_body, clean, k)
+            vis = MV.visible_fraction(start, end, radius, bodies, pixel_body, clean, k)
             img = MV.sensor(depth, rng).astype(np.float32) / 1000
             bg = MV.sensor(background, rng).astype(np.float32) / 1000
             view = D.View(img, bg, clean, pose_cam, pose_world, start, end, radius, vis, T, k)
@@ -315,12 +252,6 @@ def write_set(set_name: str, draw: str, count: int, data_dir: str = DATA_DIR) ->
 
 
 # --------------------------------------------------------------------------- pure parts: the diagnosis
-
-
-def classify(found_cost: float, truth_cost: float, margin: float = COST_MARGIN) -> str:
-    """``"search"`` when the found pose costs more than the truth (by ``margin`` or more): a better
-    optimum exists and the search missed it; else ``"objective"``: the objective prefers a wrong pose."""
-    return "search" if found_cost > truth_cost + margin else "objective"
 
 
 def link_tags(visible: float, swapped: bool, penetration: float) -> list[str]:
@@ -404,9 +335,8 @@ def diagnose_image(ds, entry: dict, config, seed: int) -> dict:
     from jaxpose.io.truth import read_pose
     from jaxpose.kinematics import forward_kinematics
     from jaxpose.metrics import evaluate, pcp, pcp_scored
-    from jaxpose.objective import collision_cost, data_cost, free_space_cost, observe, population_cost
+    from jaxpose.objective import observe
     from jaxpose.search import fit_cloud
-    from jaxpose.search.cost import objective_pairs
     from jaxpose.search.init import search_bounds
 
     skel = ds.skeleton
@@ -419,25 +349,12 @@ def diagnose_image(ds, entry: dict, config, seed: int) -> dict:
     ts, te = np.asarray(tl.start, np.float64), np.asarray(tl.end, np.float64)
     ps, pe = np.asarray(res.links.start, np.float64), np.asarray(res.links.end, np.float64)
 
-    obj = config.objective
-    obs = observe(img.cloud, obj)
-    pairs = objective_pairs(skel, obj)
-    stack = lambda a, b: jnp.asarray(np.stack([a, b]), jnp.float32)
-    radii = stack(np.asarray(res.links.radius), np.asarray(tl.radius))
-    costs = np.asarray(population_cost(obs, stack(ps, ts), stack(pe, te), radii, obj, pairs=pairs))
-    terms = {"data": data_cost(obs.cloud, obs.sigma, stack(ps, ts), stack(pe, te), radii, obj.block)}
-    if obj.free_space_weight != 0:
-        terms["free_space"] = obj.free_space_weight * free_space_cost(
-            obs.fmap, obs.sigma, stack(ps, ts), stack(pe, te), obj.free_space_samples, radii)
-    if pairs is not None:
-        terms["collision"] = obj.collision_weight * collision_cost(
-            pairs, obs.sigma, stack(ps, ts), stack(pe, te), radii, obj.collision_margin)
+    costs, terms = pose_costs(img.cloud, skel, config, [(ps, pe, res.links.radius), (ts, te, tl.radius)])
     # the truth as the search can express it: encoded in the fit's bounds (clipped) and decoded
-    bounds = search_bounds(skel, obs, config)
+    bounds = search_bounds(skel, observe(img.cloud, config.objective), config)
     clipped = forward_kinematics(skel, jaxpose.decode(skel, bounds, jaxpose.encode(skel, bounds, true_pose)))
     clip_dev = float(max(np.abs(np.asarray(clipped.start) - ts).max(), np.abs(np.asarray(clipped.end) - te).max()))
-    clip_cost = float(population_cost(obs, jnp.asarray(clipped.start)[None], jnp.asarray(clipped.end)[None],
-                                      jnp.asarray(clipped.radius)[None], obj, pairs=pairs)[0])
+    clip_cost = float(pose_costs(img.cloud, skel, config, [(clipped.start, clipped.end, clipped.radius)])[0][0])
 
     ev = evaluate(ps, pe, ts, te, skel)
     idx = {n: i for i, n in enumerate(skel.link_names)}
@@ -450,7 +367,7 @@ def diagnose_image(ds, entry: dict, config, seed: int) -> dict:
                                 axis=1)
     visible = np.array([float(v) for v in _truth_visible(truth_path, skel)])
     swapped = swapped_links(skel, ps[perm], pe[perm], ts, te)
-    pen = link_penetration(skel, ps, pe, np.asarray(res.links.radius), obj.collision_margin)[perm]
+    pen = link_penetration(skel, ps, pe, np.asarray(res.links.radius), config.objective.collision_margin)[perm]
     found, truth = float(costs[0]), float(costs[1])
     pcp_value = ev["symmetric"]["pcp"]
     return {

@@ -15,6 +15,12 @@ framing the model, the depth buffer in millimetres with Gaussian noise of
 image (floors and other world geoms stay in it).  The fit is ``jaxpose.fit_file``
 with the default ``FitConfig`` (``--generations`` to change it).
 
+Every view also records each link's visible fraction (MuJoCo's segmentation render: points
+along the link's axis inside the image, within the sensor's range, not hidden by another body),
+so the table splits the links the camera sees from the others, and the cost of the truth on
+the fit's own cloud beside the found pose's: a view with a missed link is the search's failure
+when the truth costs less (a better optimum exists), else the objective's.
+
 Needs the ``mujoco`` extra and an OpenGL context (``MUJOCO_GL=egl``, the default set
 here, or ``osmesa``); without one it says so and exits with status 0, so that
 ``make paper`` runs anywhere.
@@ -40,6 +46,9 @@ import numpy as np  # noqa: E402
 import jaxpose as jp  # noqa: E402
 from jaxpose.io.atomic import write_json  # noqa: E402
 from jaxpose.io.capsules import MAX_CAPSULES  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))  # common.py, when imported from elsewhere
+from common import COST_MARGIN, VISIBLE  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 FIXTURES = os.path.join(ROOT, "tests", "fixtures")
@@ -139,6 +148,51 @@ def random_qpos(m, rng, spread: float | None, root_joints: bool = True) -> np.nd
     return q
 
 
+MAX_INTERPENETRATION = 0.02  # metres of contact depth in total: a drawn pose beyond it is drawn again
+MAX_TRIES = 200  # draws per view at most; then the least interpenetrating one
+
+
+def self_contact_depth(m, d, ignore=frozenset()) -> float:
+    """Total penetration depth (metres) of MuJoCo's contacts between the model's own geoms
+    (MuJoCo's collision filters apply: a model that turns self-contacts off has none), leaving
+    out the geom pairs in ``ignore``."""
+    import mujoco
+
+    mujoco.mj_forward(m, d)
+    total = 0.0
+    for c in d.contact[: d.ncon]:
+        if m.geom_bodyid[c.geom1] > 0 and m.geom_bodyid[c.geom2] > 0 and (c.geom1, c.geom2) not in ignore:
+            total += max(0.0, -float(c.dist))
+    return total
+
+
+def rest_contacts(m) -> frozenset:
+    """Geom pairs of the model that touch in its rest pose (``qpos0``): parts designed to touch."""
+    import mujoco
+
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    return frozenset((int(c.geom1), int(c.geom2)) for c in d.contact[: d.ncon]
+                     if m.geom_bodyid[c.geom1] > 0 and m.geom_bodyid[c.geom2] > 0)
+
+
+def draw_qpos(m, d, rng, spread: float | None, root_joints: bool = True, max_tries: int = MAX_TRIES,
+              limit: float = MAX_INTERPENETRATION, ignore=frozenset()):
+    """:func:`random_qpos` drawn again while the model's own geoms interpenetrate by more than
+    ``limit`` (a pose the robot cannot take), at most ``max_tries`` draws, then the least
+    interpenetrating one: ``(qpos, depth, draws)``; ``d.qpos`` is left at the chosen pose."""
+    best = (None, np.inf, 0)
+    for t in range(1, max_tries + 1):
+        d.qpos[:] = q = random_qpos(m, rng, spread, root_joints)
+        depth = self_contact_depth(m, d, ignore)
+        if depth < best[1]:
+            best = (q, depth, t)
+        if depth <= limit:
+            break
+    d.qpos[:] = best[0]
+    return best
+
+
 def is_root_joint(m, j: int) -> bool:
     """Joint ``j`` belongs to the only top-level body (a free joint, a planar walker's root slides and hinge)."""
     top = [b for b in range(1, m.nbody) if m.body_parentid[b] == 0]
@@ -208,6 +262,54 @@ def render_depth(renderer, m, d, cam, hide_model: bool = False):
     return depth, centre, R
 
 
+def link_bodies(m, skel) -> np.ndarray:
+    """MuJoCo body id of every skeleton link (``body``, ``body#capsuleN``, ``body/joint``; -1: none)."""
+
+    def body(name):
+        try:
+            return m.body(name.split("/")[0].split("#")[0]).id
+        except KeyError:  # a link MuJoCo merged away: its visibility by depth order alone
+            return -1
+
+    return np.array([body(n) for n in skel.link_names])
+
+
+def visible_fraction(start, end, radius, link_body, pixel_body, clean, k, samples: int = 9, tol: float = 0.01):
+    """:func:`jaxpose.datasets.link_visibility` with MuJoCo's segmentation: a point along a link's axis is
+    visible when its pixel shows the link's body, or anything not in front of it."""
+    from jaxpose.camera import project
+
+    s, e, r = (np.asarray(a, np.float64) for a in (start, end, radius))
+    p = s[:, None] + np.linspace(0, 1, samples)[None, :, None] * (e - s)[:, None]
+    uv = np.round(project(p, k)).astype(int)
+    H, W = clean.shape
+    inside = (uv[..., 0] >= 0) & (uv[..., 0] < W) & (uv[..., 1] >= 0) & (uv[..., 1] < H) & (p[..., 2] > 0)
+    u, v = np.clip(uv[..., 0], 0, W - 1), np.clip(uv[..., 1], 0, H - 1)
+    seen = clean[v, u]
+    own = pixel_body[v, u] == np.asarray(link_body)[:, None]
+    return (inside & (seen > 0) & (own | (seen >= p[..., 2] - r[:, None] - tol))).mean(1)
+
+
+def segmentation_bodies(renderer, m, d, cam) -> np.ndarray:
+    """The MuJoCo body seen at every pixel (-1: none or not a geom), every geom group drawn."""
+    import mujoco
+
+    opt = mujoco.MjvOption()
+    opt.geomgroup[:] = 1
+    opt.sitegroup[:] = 0
+    opt.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = 0
+    renderer.enable_segmentation_rendering()
+    try:
+        renderer.update_scene(d, camera=cam, scene_option=opt)
+        seg = renderer.render()
+    finally:
+        renderer.disable_segmentation_rendering()
+        renderer.enable_depth_rendering()
+    ids, types = seg[..., 0], seg[..., 1]
+    is_geom = (types == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids >= 0)
+    return np.where(is_geom, np.asarray(m.geom_bodyid)[np.clip(ids, 0, m.ngeom - 1)], -1)
+
+
 def sensor(depth, rng) -> np.ndarray:
     """Noise growing with the square of depth, nothing measured outside ``RANGE`` (a Kinect v1's
     0.4-4 m), then whole millimetres (a 16-bit PNG's content, 0: no measurement)."""
@@ -217,16 +319,22 @@ def sensor(depth, rng) -> np.ndarray:
 
 
 def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: str, size=(640, 480),
-              plots: int = 1, max_capsules: int | None = None):
+              plots: int = 1, max_capsules: int | None = None, max_tries: int = MAX_TRIES):
     """Render, fit and score ``views`` views of one model; one record per view, and overlay plots
-    of the first ``plots`` views in ``out_dir``."""
+    of the first ``plots`` views in ``out_dir``.  ``max_tries``: draws of a pose whose own geoms
+    interpenetrate (:func:`draw_qpos`; 1: every first draw kept)."""
     import imageio.v3 as iio
     import mujoco
 
+    from common import miss_verdict, pose_costs
+
     from jaxpose.kinematics import forward_kinematics
     from jaxpose.metrics import evaluate, pcp, pcp_scored
+    from jaxpose.pipeline import read_observation
 
     m, skel, to_pose = load(path, max_capsules)
+    bodies = link_bodies(m, skel)
+    ignore = rest_contacts(m)
     d = mujoco.MjData(m)
     renderer = mujoco.Renderer(m, size[1], size[0])
     renderer.enable_depth_rendering()
@@ -234,11 +342,16 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
     records = []
     for v in range(views):
         rng = np.random.default_rng([seed, v])
-        d.qpos[:] = random_qpos(m, rng, spread, root_joints=not path.lower().endswith(".urdf"))
+        # a pose whose own geoms interpenetrate is drawn again (the first draw, and so the view, as
+        # before where it is free): the robot cannot take it, and the truth would pay the collision term
+        _, contact, draws = draw_qpos(m, d, rng, spread, not path.lower().endswith(".urdf"),
+                                      max_tries=max_tries, ignore=ignore)
         mujoco.mj_kinematics(m, d)
         cam, k = camera_view(m, d, rng, *size)
         depth, centre, R = render_depth(renderer, m, d, cam)
         background, _, _ = render_depth(renderer, m, d, cam, hide_model=True)
+        pixel_body = segmentation_bodies(renderer, m, d, cam)
+        measured = np.where((depth >= RANGE[0]) & (depth <= RANGE[1]), np.nan_to_num(depth), 0.0)
         image = os.path.join(out_dir, f"{name}_{v}_depth.png")
         bg = os.path.join(out_dir, f"{name}_{v}_background.png")
         iio.imwrite(image, sensor(depth, rng))
@@ -248,6 +361,9 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
         true_end = (np.asarray(links.end, np.float64) - centre) @ R.T
         true_origin = (np.asarray(links.origin, np.float64) - centre) @ R.T
         true_R = R @ np.asarray(links.R_world_link, np.float64)
+        true_radius = np.asarray(links.radius, np.float64)
+        # each link's visible fraction: in the image, in the sensor's range, not hidden
+        visible = visible_fraction(true_start, true_end, true_radius, bodies, pixel_body, measured, k)
         options = jp.InputOptions(intrinsics=f"{k.fx},{k.fy},{k.cx},{k.cy}",
                                   background=bg if np.isfinite(background).any() else None)
         t0 = time.perf_counter()
@@ -260,15 +376,28 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
         # the links PCP misses under the symmetric matching (the one of the MPJPE), by true link
         idx = {n: i for i, n in enumerate(skel.link_names)}
         perm = [idx[ev["matching"][n]] for n in skel.link_names]
-        missed = ~pcp(ps[perm], pe[perm], true_start, true_end) & pcp_scored(true_start, true_end)
+        scored = pcp_scored(true_start, true_end)
+        missed = ~pcp(ps[perm], pe[perm], true_start, true_end) & scored
+        # the found pose against the truth on the fit's own cloud: which of the two the objective prefers
+        cloud = read_observation(image, options)[2]
+        found_radius = np.asarray(out.result.links.radius, np.float64)
+        (found_cost, truth_cost), _ = pose_costs(cloud, skel, config, [(ps, pe, found_radius),
+                                                                       (true_start, true_end, true_radius)])
+        seen = visible >= VISIBLE
         rec = {"model": name, "file": os.path.relpath(path, ROOT) if path.startswith(ROOT) else os.path.basename(path),
                "view": v, "seed": seed, "links": skel.num_links, "pcp_links": ev["pcp_links"],
                "points_used": out.document["input"]["points_used"], "cost": out.document["cost"],
                "seconds": seconds, "camera_distance": cam.distance, "elevation_deg": -cam.elevation,
-               "azimuth_deg": cam.azimuth, **{f"{key}": ev["symmetric"][key] for key in ev["symmetric"]},
+               "azimuth_deg": cam.azimuth, "self_contact_m": contact, "pose_draws": draws,
+               **{f"{key}": ev["symmetric"][key] for key in ev["symmetric"]},
                "pcp_strict": ev["strict"]["pcp"],
                "frames_5cm": frames_score(skel, out.result.links, true_R, true_origin),
-               "misplaced": [n for n, miss in zip(skel.link_names, missed) if miss]}
+               "misplaced": [n for n, miss in zip(skel.link_names, missed) if miss],
+               "visible": [float(x) for x in visible], "scored": [bool(x) for x in scored],
+               "seen_links": int(np.sum(scored & seen)), "seen_placed": int(np.sum(scored & seen & ~missed)),
+               "hidden_links": int(np.sum(scored & ~seen)), "hidden_placed": int(np.sum(scored & ~seen & ~missed)),
+               "found_cost": float(found_cost), "truth_cost": float(truth_cost),
+               "verdict": miss_verdict(found_cost, truth_cost) if missed.any() else None}
         records.append(rec)
         if v < plots:  # the fit over the depth image, the truth dashed
             from jaxpose.viz import overlay_figure, save_figure
@@ -278,9 +407,11 @@ def run_model(path: str, views: int, seed: int, spread: float, config, out_dir: 
                                  title=f"{name}: MuJoCo's depth, jaxpose's fit (truth: dashed)")
             save_figure(fig, os.path.join(out_dir, f"{name}_{v}_overlay.png"))
         shown = "-" if rec["pcp"] is None else f"{100 * rec['pcp']:.0f}%"
-        print(f"  {name} view {v}: PCP {shown}, PCP@10cm {100 * rec['pcp_10cm']:.0f}%, "
-              f"frames@5cm {100 * rec['frames_5cm']:.0f}%, "
-              f"MPJPE {rec['mpjpe_mm']:.0f} mm, {seconds:.1f} s", flush=True)
+        print(f"  {name} view {v}: PCP {shown} (seen {rec['seen_placed']}/{rec['seen_links']}, hidden "
+              f"{rec['hidden_placed']}/{rec['hidden_links']}), PCP@10cm {100 * rec['pcp_10cm']:.0f}%, "
+              f"frames@5cm {100 * rec['frames_5cm']:.0f}%, MPJPE {rec['mpjpe_mm']:.0f} mm, "
+              f"cost found {found_cost:.4f} truth {truth_cost:.4f} -> {rec['verdict'] or 'placed'}, "
+              f"{seconds:.1f} s", flush=True)
     renderer.close()
     return records
 
@@ -333,23 +464,48 @@ def summary(records):
             "frames_5cm": float(np.mean([r["frames_5cm"] for r in rs])),
             "mpjpe_mm": float(np.median([r["mpjpe_mm"] for r in rs])),
             "seconds_median": float(np.median([r["seconds"] for r in rs])),
+            **visibility_split(rs),
         })
     return out
 
 
+def visibility_split(rs) -> dict:
+    """Links the camera sees (visible fraction >= ``VISIBLE``) and hidden ones, placed out of scored;
+    views with a missed link, and whole-body misses, by verdict (the search or the objective at fault)."""
+    def total(key):
+        return int(sum(r.get(key, 0) for r in rs))
+
+    def verdicts(views):
+        return {v: sum(r.get("verdict") == v for r in views) for v in ("search", "objective")}
+
+    whole = [r for r in rs if r["pcp"] is not None and r["pcp"] < WHOLE_BODY_MISS]
+    ratio = lambda a, b: total(a) / total(b) if total(b) else None  # noqa: E731
+    return {"seen_links": total("seen_links"), "seen_pcp": ratio("seen_placed", "seen_links"),
+            "hidden_links": total("hidden_links"), "hidden_pcp": ratio("hidden_placed", "hidden_links"),
+            "missed_views": verdicts(rs), "whole_body_verdicts": verdicts(whole)}
+
+
 def markdown(rows, machine: str) -> str:
-    lines = ["| model | links (PCP-scored) | views | PCP | whole-body misses | PCP@10cm | PCK@10cm | frames@5cm "
-             "| MPJPE (mm, median) | s / view (median) |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| model | links (PCP-scored) | views | PCP | seen links: PCP (links) | hidden: PCP (links) "
+             "| whole-body misses (search / objective) | views missed: search / objective "
+             "| PCP@10cm | PCK@10cm | frames@5cm | MPJPE (mm, median) | s / view (median) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    pct = lambda x: "-" if x is None else f"{100 * x:.1f}%"  # noqa: E731
     for r in rows:
-        pcp = "-" if r["pcp"] is None else f"{100 * r['pcp']:.1f}%"
-        lines.append(f"| {r['model']} | {r['links']} ({r['pcp_links']}) | {r['views']} | {pcp} | "
-                     f"{r['whole_body_misses']} | "
+        wb, mv = r["whole_body_verdicts"], r["missed_views"]
+        lines.append(f"| {r['model']} | {r['links']} ({r['pcp_links']}) | {r['views']} | {pct(r['pcp'])} | "
+                     f"{pct(r['seen_pcp'])} ({r['seen_links']}) | {pct(r['hidden_pcp'])} ({r['hidden_links']}) | "
+                     f"{r['whole_body_misses']} ({wb['search']} / {wb['objective']}) | "
+                     f"{mv['search']} / {mv['objective']} | "
                      f"{100 * r['pcp_10cm']:.1f}% | {100 * r['pck_10cm']:.1f}% | {100 * r['frames_5cm']:.1f}% | "
                      f"{r['mpjpe_mm']:.0f} | "
                      f"{r['seconds_median']:.1f} |")
     return "\n".join(lines) + (f"\n\nMachine: {machine}. Symmetric scores (interchangeable links matched) but "
                                 f"frames@5cm (strict; extra capsules left out); a whole-body miss: PCP under "
-                                f"{100 * WHOLE_BODY_MISS:.0f}%.\n")
+                                f"{100 * WHOLE_BODY_MISS:.0f}%. Seen: a link's visible fraction (in the image, "
+                                f"in the sensor's range, not hidden) at least {VISIBLE}. A view missed by the "
+                                f"search: its fit costs more than the truth (by {COST_MARGIN} or more) on the "
+                                f"same cloud; else by the objective.\n")
 
 
 def gl_problem() -> str | None:
@@ -389,6 +545,9 @@ def main(argv=None) -> int:
     ap.add_argument("--generations", type=int, default=None, help="FitConfig.generations (default: automatic)")
     ap.add_argument("--capsules", type=at_least_one, default=None,
                     help="capsules per link at most (load_skeleton's max_capsules; default: its default)")
+    ap.add_argument("--keep-self-contacts", action="store_true",
+                    help="keep every drawn pose, also those whose own geoms interpenetrate (default: drawn again, "
+                         f"up to {MAX_TRIES} times, while over {MAX_INTERPENETRATION} m)")
     ap.add_argument("--plots", type=int, default=1, help="overlay plots of the first N views per model (default 1)")
     ap.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
                     help="a FitConfig setting (repeatable; objective.NAME for the cost's), as hard_poses.py --set")
@@ -417,13 +576,15 @@ def main(argv=None) -> int:
         print(f"{os.path.basename(path)}:", flush=True)
         try:
             records += run_model(os.path.abspath(public_model(path)), args.views, args.seed, args.spread, config,
-                                 args.out, plots=args.plots, max_capsules=args.capsules)
+                                 args.out, plots=args.plots, max_capsules=args.capsules,
+                                 max_tries=1 if args.keep_self_contacts else MAX_TRIES)
         except (jp.JaxposeError, ValueError) as e:  # e.g. a mesh MuJoCo cannot find: the others still run
             print(f"  skipped: {' '.join(str(e).split())[:200]}", flush=True)
     rows = summary(records)
     machine = machine_id()
     write_json(os.path.join(args.out, "mujoco_views.json"),
                {"machine": machine_info(), "config": config.to_dict(), "noise": NOISE,
+                "pose_draws": 1 if args.keep_self_contacts else MAX_TRIES, "max_self_contact_m": MAX_INTERPENETRATION,
                 "spread": "uniform" if args.spread is None else args.spread,
                 "max_capsules": MAX_CAPSULES if args.capsules is None else args.capsules,
                 "summary": rows, "views": records})

@@ -121,12 +121,22 @@ def test_spread_argument_and_public_models():
         MV.public_model("gymnasium:no_such_model.xml")
 
 
-def test_summary_counts_whole_body_misses():
+def test_summary_counts_whole_body_misses_and_splits_seen_links_and_verdicts():
     base = {"model": "m", "file": "m.xml", "links": 3, "pcp_links": 3, "pcp_10cm": 1.0, "pck_10cm": 1.0,
             "frames_5cm": 1.0, "mpjpe_mm": 5.0, "seconds": 1.0}
-    rows = MV.summary([{**base, "pcp": p} for p in (1.0, 0.2, 0.0, 0.25, None)])
-    assert rows[0]["whole_body_misses"] == 2 and rows[0]["views"] == 5
-    assert "| 2 |" in MV.markdown(rows, "test machine")
+    views = [  # (pcp, seen links, seen placed, hidden links, hidden placed, verdict)
+        (1.0, 3, 3, 0, 0, None), (0.2, 2, 0, 1, 1, "search"), (0.0, 2, 0, 1, 0, "objective"),
+        (0.25, 3, 1, 0, 0, "search"), (None, 0, 0, 0, 0, None)]
+    rows = MV.summary([{**base, "pcp": p, "seen_links": s, "seen_placed": sp, "hidden_links": h,
+                        "hidden_placed": hp, "verdict": v} for p, s, sp, h, hp, v in views])
+    r = rows[0]
+    assert r["whole_body_misses"] == 2 and r["views"] == 5
+    assert r["seen_links"] == 10 and r["seen_pcp"] == pytest.approx(4 / 10)
+    assert r["hidden_links"] == 2 and r["hidden_pcp"] == pytest.approx(1 / 2)
+    assert r["missed_views"] == {"search": 2, "objective": 1}
+    assert r["whole_body_verdicts"] == {"search": 1, "objective": 1}  # the 0.25 view is no whole-body miss
+    table = MV.markdown(rows, "test machine")
+    assert "| 40.0% (10) | 50.0% (2) | 2 (1 / 1) | 2 / 1 |" in table
 
 
 def test_set_names_a_bad_setting_in_one_line_and_needs_its_own_folder(tmp_path, capsys):
@@ -136,3 +146,49 @@ def test_set_names_a_bad_setting_in_one_line_and_needs_its_own_folder(tmp_path, 
         MV.main(["--set", "turns=1"])
     assert e.value.code == 2 and "--set needs --out" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_a_view_weighs_the_found_pose_with_the_fits_own_cost_and_counts_seen_links(tmp_path):
+    """The found pose scored again on the fit's cloud (pose_costs) must give the fit's own cost, the
+    verdict follow from the two costs, and every scored link be seen or hidden."""
+    from common import miss_verdict
+
+    from jaxpose.search import FitConfig
+
+    config = FitConfig(population=8, generations=2, limb_sweep=0, pivot_sweep=0, turns=0)
+    (rec,) = MV.run_model(os.path.join(FIXTURES, "planar.xml"), 1, 0, 0.3, config, str(tmp_path), size=(160, 120),
+                          plots=0)
+    assert rec["found_cost"] == pytest.approx(rec["cost"], abs=1e-5)
+    assert rec["truth_cost"] >= 0 and all(0.0 <= v <= 1.0 for v in rec["visible"])
+    assert rec["seen_links"] + rec["hidden_links"] == sum(rec["scored"]) and rec["seen_links"] > 0
+    placed = round(rec["pcp"] * sum(rec["scored"]))
+    assert rec["seen_placed"] + rec["hidden_placed"] == placed
+    expected = None if placed == sum(rec["scored"]) else miss_verdict(rec["found_cost"], rec["truth_cost"])
+    assert rec["verdict"] == expected
+
+
+def test_a_drawn_pose_keeps_the_robots_own_geoms_apart():
+    """arm7's uniform draw of view (1, 19) folds the arm into itself (MuJoCo's contacts, over 10 cm
+    deep): it is drawn again until MuJoCo's own contacts, recomputed here, stay within the limit;
+    the forearm and wrist, which touch in the rest pose, are not counted."""
+    import mujoco
+
+    m, _, _ = MV.load(os.path.join(FIXTURES, "arm7.urdf"))
+    ignore = MV.rest_contacts(m)
+    names = {tuple(sorted(m.body(m.geom_bodyid[g]).name for g in pair)) for pair in ignore}
+    assert names == {("forearm_link", "wrist2_link")}
+    d = mujoco.MjData(m)
+    d.qpos[:] = MV.random_qpos(m, np.random.default_rng([1, 19]), None, root_joints=False)
+    assert MV.self_contact_depth(m, d, ignore) > 0.1
+    q, depth, draws = MV.draw_qpos(m, d, np.random.default_rng([1, 19]), None, root_joints=False, ignore=ignore)
+    assert draws > 1 and depth <= MV.MAX_INTERPENETRATION and np.array_equal(d.qpos, q)
+    fresh = mujoco.MjData(m)
+    fresh.qpos[:] = q
+    mujoco.mj_forward(m, fresh)
+    own = [c for c in fresh.contact[: fresh.ncon] if (c.geom1, c.geom2) not in ignore
+           and m.geom_bodyid[c.geom1] > 0 and m.geom_bodyid[c.geom2] > 0]
+    assert sum(max(0.0, -c.dist) for c in own) == pytest.approx(depth)
+    # one draw allowed: the first pose is kept, whatever it is
+    q1, depth1, draws1 = MV.draw_qpos(m, d, np.random.default_rng([1, 19]), None, root_joints=False, max_tries=1,
+                                      ignore=ignore)
+    assert draws1 == 1 and depth1 > 0.1
