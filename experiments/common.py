@@ -333,7 +333,7 @@ def pose_costs(cloud, skel: Skeleton, config: FitConfig, posed) -> tuple[np.ndar
     terms = {"data": data_cost(obs.cloud, obs.sigma, s, e, r, obj.block)}
     if obj.free_space_weight != 0:
         terms["free_space"] = obj.free_space_weight * free_space_cost(obs.fmap, obs.sigma, s, e,
-                                                                      obj.free_space_samples, r)
+                                                                      obj.free_space_samples, r, obj.max_range)
     if pairs is not None:
         terms["collision"] = obj.collision_weight * collision_cost(pairs, obs.sigma, s, e, r, obj.collision_margin)
     return costs, {k: np.asarray(v, np.float64) for k, v in terms.items()}

@@ -97,6 +97,9 @@ def register(sub) -> None:
     p.add_argument("--collision-weight", type=float, default=ObjectiveConfig.collision_weight,
                    help="weight of the term that keeps links from passing through each other "
                         f"(0: off; default {ObjectiveConfig.collision_weight})")
+    p.add_argument("--max-range", type=float, metavar="METRES",
+                   help="the depth sensor measures nothing beyond this depth (a Kinect v1: 4): a link beyond it "
+                        "where nothing was measured is not taken for empty space (default: no limit)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", help="result JSON (default result.json; one input only)")
     p.add_argument("--plot", help="PNG with the fitted skeleton drawn over the depth image, or over a "
@@ -126,6 +129,7 @@ FLAGS = {
     "restarts": "--restarts", "restart_apart": "--restart-apart", "scale": "--scale",
     "pivot_sweep": "--pivot-sweep", "objective.sigma_factor": "--sigma-factor",
     "objective.free_space_weight": "--free-space-weight", "objective.collision_weight": "--collision-weight",
+    "objective.max_range": "--max-range",
     "near": "--near", "far": "--far", "depth_scale": "--depth-scale", "cloud_scale": "--cloud-scale",
     "viewpoint": "--viewpoint", "max_points": "--max-points", "remove_planes": "--remove-planes",
 }
@@ -176,7 +180,7 @@ def config_from_args(args) -> FitConfig:
         restart_apart=args.restart_apart,
         scale=args.scale,
         objective=ObjectiveConfig(free_space_weight=args.free_space_weight, sigma_factor=args.sigma_factor,
-                                  collision_weight=args.collision_weight),
+                                  collision_weight=args.collision_weight, max_range=args.max_range),
     )
     if args.no_refine:
         cfg = dataclasses.replace(cfg, memetic_steps=0, final_refine_steps=0)

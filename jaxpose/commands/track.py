@@ -87,6 +87,8 @@ def register(sub) -> None:
     g.add_argument("--sigma-factor", type=float, default=ObjectiveConfig.sigma_factor)
     g.add_argument("--free-space-weight", type=float, default=ObjectiveConfig.free_space_weight)
     g.add_argument("--collision-weight", type=float, default=ObjectiveConfig.collision_weight)
+    g.add_argument("--max-range", type=float, metavar="METRES",
+                   help="the sensor measures nothing beyond this depth (as fit's --max-range)")
     g.add_argument("--seed", type=int, default=0)
     k = p.add_argument_group("tracking (docs/tracking.md)")
     k.add_argument("--track-population", type=int, default=t.population,

@@ -87,7 +87,8 @@ def population_cost(obs: Observation, start, end, radius, config: ObjectiveConfi
     fs_w, col_w = (config.free_space_weight, config.collision_weight) if weights is None else weights
     cost = data_cost(obs.cloud, obs.sigma, start, end, radius, config.block, blocks)
     if config.free_space_weight != 0:
-        cost = cost + fs_w * free_space_cost(obs.fmap, obs.sigma, start, end, config.free_space_samples, radius)
+        cost = cost + fs_w * free_space_cost(obs.fmap, obs.sigma, start, end, config.free_space_samples, radius,
+                                             config.max_range)
     if config.collision_weight != 0 and pairs is not None and len(pairs.i):
         cost = cost + col_w * collision_cost(pairs, obs.sigma, start, end, radius, config.collision_margin)
     return cost

@@ -16,6 +16,7 @@ class ObjectiveConfig:
     free_space_weight: float = 1.0
     free_space_samples: int = 6
     free_space_grid: int = 40
+    max_range: float | None = None  # metres the sensor measures at most (None: no limit); see free_space_cost
     collision_weight: float = 0.1
     collision_margin: float = 0.8  # clearance of two capsules' axes, a fraction of r_i + r_j
     block: int = 256  # points per streamed block in the kernel
@@ -27,6 +28,8 @@ class ObjectiveConfig:
 
         if self.sigma is not None and not number("sigma") > 0:
             raise ConfigError(f"objective.sigma must be > 0 metres (or None: from the cloud), got {self.sigma}")
+        if self.max_range is not None and not number("max_range") > 0:
+            raise ConfigError(f"objective.max_range must be > 0 metres (or left unset: no limit), got {self.max_range}")
         if not number("sigma_factor") > 0:
             raise ConfigError(f"objective.sigma_factor must be > 0, got {self.sigma_factor}")
         for name in ("free_space_weight", "collision_weight"):

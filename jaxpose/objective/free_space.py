@@ -44,12 +44,15 @@ def free_space_map(cloud: Cloud, grid: int = 40) -> FreeSpaceMap:
     return FreeSpaceMap(depth, lo, cell)
 
 
-def free_space_cost(fmap: FreeSpaceMap, sigma, start, end, samples: int, radius=None) -> jax.Array:
+def free_space_cost(fmap: FreeSpaceMap, sigma, start, end, samples: int, radius=None,
+                    max_range: float | None = None) -> jax.Array:
     """Mean free-space penalty of capsule-axis samples, ``start, end (P, L, 3)`` -> ``(P,)``.
 
     A sample's depth is that of the capsule's front surface, ``z - radius``
     (``radius`` ``(L,)`` or ``(P, L)``; omitted: 0), so that a fat capsule cannot hide
     its axis behind the observed surface while its front bulges out of it.
+    ``max_range``: the sensor measures nothing deeper, so a sample deeper than it where
+    nothing was observed costs nothing (it would not have been seen); ``None``: no limit.
     """
     grid = fmap.depth.shape[0]
     t = (jnp.arange(samples, dtype=start.dtype) + 0.5) / samples
@@ -65,6 +68,9 @@ def free_space_cost(fmap: FreeSpaceMap, sigma, start, end, samples: int, radius=
     z_obs = fmap.depth[ijc[..., 1], ijc[..., 0]]
     front = z if radius is None else z - jnp.broadcast_to(radius, start.shape[:-1])[..., None]
     gap = jnp.clip(z_obs - front, 0.0, sigma)  # in front of the observed surface
-    gap = jnp.where(inside & jnp.isfinite(z_obs) & in_front_of_camera, gap, sigma)
+    observed = inside & jnp.isfinite(z_obs) & in_front_of_camera
+    gap = jnp.where(observed, gap, sigma)
+    if max_range is not None:  # beyond the sensor's range, no measurement is no evidence of free space
+        gap = jnp.where(~observed & in_front_of_camera & (front > max_range), 0.0, gap)
     pen = jnp.log1p(gap / sigma)
     return jnp.mean(pen.reshape(pen.shape[0], -1), -1)

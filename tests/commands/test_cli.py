@@ -284,10 +284,12 @@ def test_fit_options_reach_the_config():
     args = build_parser().parse_args(["fit", "d.png", "--skeleton", "spider", "--coarse-points", "256",
                                       "--islands", "3", "--population", "20", "--generations", "40",
                                       "--tie-lengths", "--limb-sweep", "7", "--pivot-sweep", "5", "--turns", "2",
-                                      "--restarts", "3", "--restart-apart", "0.25", "--scale", "1"])
+                                      "--restarts", "3", "--restart-apart", "0.25", "--scale", "1",
+                                      "--max-range", "4"])
     cfg = config_from_args(args)
     assert (cfg.coarse_points, cfg.islands, cfg.population, cfg.generations, cfg.limb_sweep, cfg.pivot_sweep,
             cfg.turns, cfg.restarts, cfg.restart_apart, cfg.scale) == (256, 3, 20, 40, 7, 5, 2, 3, 0.25, 1.0)
+    assert cfg.objective.max_range == 4.0
     assert cfg.tie_lengths
     default = config_from_args(build_parser().parse_args(["fit", "d.png", "--skeleton", "spider"]))
     assert default == FitConfig()
@@ -310,8 +312,9 @@ def test_track_options_reach_the_config():
     from jaxpose.tracking import TrackConfig
 
     args = build_parser().parse_args(["track", "frames", "--skeleton", "spider", "--out-dir", "o",
-                                      "--track-length-window", "1.02", "--track-recheck", "30", "--scale", "1.1"])
+                                      "--track-length-window", "1.02", "--track-recheck", "30", "--scale", "1.1",
+                                      "--max-range", "3.5"])
     cfg = track_config_from_args(args)
-    assert (cfg.length_window, cfg.recheck_every, cfg.fit.scale) == (1.02, 30, 1.1)
+    assert (cfg.length_window, cfg.recheck_every, cfg.fit.scale, cfg.fit.objective.max_range) == (1.02, 30, 1.1, 3.5)
     plain = build_parser().parse_args(["track", "f", "--skeleton", "spider", "--out-dir", "o"])
     assert track_config_from_args(plain) == TrackConfig()

@@ -23,6 +23,7 @@ from jaxpose.objective import (
 )
 
 from oracles import brute_cost, spread, surface_distances
+from jaxpose.errors import ConfigError
 
 RTOL = 1e-5
 data_cost_jit = jax.jit(data_cost, static_argnames="block")
@@ -239,6 +240,35 @@ def test_free_space_term(plane_obs):
     assert fs_cost(plane_obs, [[0.8, 0, 2.5]], [[0.85, 0, 2.5]]) == pytest.approx(np.log(2), rel=1e-6)
     assert fs_cost(plane_obs, [[30.0, 0, 2.5]], [[31.0, 0, 2.5]]) == pytest.approx(np.log(2), rel=1e-6)
     assert fs_cost(plane_obs, [[3e3, 0, 1.5e-3]], [[-3e3, 0, 1.2e-3]]) == pytest.approx(np.log(2), rel=1e-6)
+
+
+def test_beyond_the_sensors_range_no_measurement_is_not_free_space(plane_obs):
+    """``max_range``: a sample deeper than the sensor measures, where nothing was observed, costs
+    nothing; where something was observed, and within the range, the term is unchanged."""
+    def cost(start, end, max_range):
+        return float(free_space_cost(plane_obs.fmap, plane_obs.sigma, f32(start)[None], f32(end)[None], 6,
+                                     max_range=max_range)[0])
+
+    sigma = float(plane_obs.sigma)
+    beside = ([[1.4, 0, 4.5]], [[1.45, 0, 4.5]])  # empty cells of the map (beside the plane), 4.5 m deep
+    assert cost(*beside, None) == pytest.approx(np.log(2), rel=1e-6)
+    assert cost(*beside, 4.0) == 0.0  # beyond a 4 m sensor: it would not have been seen
+    assert cost(*beside, 5.0) == pytest.approx(np.log(2), rel=1e-6)  # within a 5 m one: it would
+    # a capsule reaching from 3.5 to 4.5 m beside the silhouette: the samples beyond 4 m (t = 7/12 .. 11/12)
+    reach = ([[1.4, 0, 3.5]], [[1.4, 0, 4.5]])
+    depths = 3.5 + (np.arange(6) + 0.5) / 6
+    assert cost(*reach, 4.0) == pytest.approx(np.mean(np.where(depths > 4.0, 0.0, np.log(2))), rel=1e-6)
+    # observed cells and samples in front of the camera's plane keep their cost
+    assert cost([[-0.2, 0, 1.9]], [[0.2, 0.1, 1.9]], 1.0) == pytest.approx(np.log1p(0.1 / sigma), rel=1e-5)
+    assert cost([[0.8, 0, -4.5]], [[0.85, 0, -4.5]], 4.0) == pytest.approx(np.log(2), rel=1e-6)
+    with pytest.raises(ConfigError, match="objective.max_range"):
+        ObjectiveConfig(max_range=0.0).validate()
+    # population_cost passes the config's range
+    cfg = ObjectiveConfig(max_range=4.0, collision_weight=0.0)
+    s, e = (f32(a)[None] for a in beside)
+    with_range = float(pop_cost_jit(plane_obs, s, e, jnp.zeros((1, 1)), config=cfg)[0])
+    without = float(pop_cost_jit(plane_obs, s, e, jnp.zeros((1, 1)), config=ObjectiveConfig(collision_weight=0.0))[0])
+    assert without - with_range == pytest.approx(np.log(2), rel=1e-5)
 
 
 def test_population_cost_is_data_plus_weighted_free_space_per_individual(plane_obs):
