@@ -200,15 +200,18 @@ def is_root_joint(m, j: int) -> bool:
 
 
 def joint_span(m, j: int) -> tuple[float, float]:
-    """``(low, high)`` of hinge or slide ``j``: its range, or unlimited, half a turn (a slide: half the
-    model's size) each way from ``qpos0``."""
+    """``(low, high)`` of hinge or slide ``j``: its range, or unlimited, half a turn (a slide: the
+    model's size, as the MJCF importer bounds it) each way from ``qpos0``: the skeleton's range, so
+    that every drawn pose is one the fit can express."""
     import mujoco
+
+    from jaxpose.io.mjcf import _reach
 
     if m.jnt_limited[j]:
         lo, hi = m.jnt_range[j]
         return float(lo), float(hi)
     a = int(m.jnt_qposadr[j])
-    r = np.pi if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE) else 0.5 * float(m.stat.extent)
+    r = np.pi if int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE) else _reach(m)
     return float(m.qpos0[a]) - r, float(m.qpos0[a]) + r
 
 

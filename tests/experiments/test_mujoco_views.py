@@ -192,3 +192,20 @@ def test_a_drawn_pose_keeps_the_robots_own_geoms_apart():
     q1, depth1, draws1 = MV.draw_qpos(m, d, np.random.default_rng([1, 19]), None, root_joints=False, max_tries=1,
                                       ignore=ignore)
     assert draws1 == 1 and depth1 > 0.1
+
+
+def test_drawn_joint_values_lie_in_the_skeletons_ranges():
+    """Uniform draws stay within what the importer lets the fit express: the planar walker's
+    unlimited slide ('rail') included, whose range is the model's size."""
+    import mujoco
+
+    m, skel, to_pose = MV.load(os.path.join(FIXTURES, "planar.xml"))
+    d = mujoco.MjData(m)
+    lo, hi = np.asarray(skel.angle_lo, np.float64), np.asarray(skel.angle_hi, np.float64)
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        d.qpos[:] = MV.random_qpos(m, rng, None)
+        angles = np.asarray(to_pose(d.qpos).angles, np.float64)
+        assert np.all(angles >= lo - 1e-5) and np.all(angles <= hi + 1e-5)
+    rail = m.joint("rail").id
+    assert MV.joint_span(m, rail)[1] == pytest.approx(float(hi[skel.index("tail"), 0]), rel=1e-6)
