@@ -10,7 +10,8 @@ forward kinematics of :func:`~jaxpose.io.mjcf.pose_from_qpos` (equal to MuJoCo's
 
 Per model and view: joint values drawn around ``qpos0`` (``--spread`` times half of each
 range; a pose whose own geoms interpenetrate by more than 2 cm in MuJoCo's contacts, parts
-that touch in the rest pose aside, is drawn again: ``--keep-self-contacts`` keeps it), a free camera on a random orbit (elevation 15-45 degrees down, any azimuth)
+that touch in the rest pose aside, is drawn again: ``--keep-self-contacts`` keeps it), a free
+camera on a random orbit (elevation 15-45 degrees down, any azimuth)
 framing the model, the depth buffer in millimetres with Gaussian noise of
 ``0.0015 z^2`` m and nothing beyond 0.4-4 m, and a second render with the model's geoms hidden as the background
 image (floors and other world geoms stay in it).  The fit is ``jaxpose.fit_file``
